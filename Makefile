@@ -1,0 +1,36 @@
+# gelcell: two commands do everything on a fresh Debian 12 machine.
+#   make run   - install what is missing, run the shear-flow baseline with a cell
+#   make test  - install what is missing, run the test suite (serial + 2 MPI ranks)
+
+VENV      := .venv
+PY        := $(VENV)/bin/python
+STAMP     := $(VENV)/.gelcell-installed
+RUN_OUT   ?= results/shear-baseline
+export OMPI_ALLOW_RUN_AS_ROOT := 1
+export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM := 1
+export OMPI_MCA_rmaps_base_oversubscribe := 1
+export MPLBACKEND := Agg
+
+.PHONY: all setup run test test-serial test-mpi benchmark clean
+
+all: test
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml scripts/ensure-system-packages
+	./scripts/ensure-system-packages
+	test -x $(PY) || /usr/bin/python3 -m venv --system-site-packages $(VENV)
+	$(PY) -m pip install --no-build-isolation --no-deps -q -e .
+	touch $(STAMP)
+
+run: setup
+	$(VENV)/bin/gelcell run shear --out $(RUN_OUT)
+
+test: setup
+	$(PY) -m pytest -q -ra --durations=15
+
+benchmark: setup
+	$(PY) -m pytest -q -m benchmark
+
+clean:
+	rm -rf $(VENV) results .pytest_cache

@@ -1,0 +1,60 @@
+"""Weak form of the neo-Hookean cell (pure UFL, shared with the monolithic reference).
+
+Cauchy stress (model.md section 2), plane strain:
+
+    sigma_c = mu_c J^-1 (F F^T - I) + lambda_c (J - 1) I,   F = I + grad u_c
+
+It derives from  W = mu_c/2 (tr C - 2) - mu_c ln J + lambda_c/2 (J - 1)^2,
+with first Piola-Kirchhoff stress  P = J sigma F^-T = mu_c (F - F^-T) + lambda_c J (J - 1) F^-T.
+The cell is solved in the total Lagrangian form  int P : grad v dX = int t0 . v dS.
+
+Units: stresses in a unit ``s`` and displacements in a unit ``d`` (both in
+units of the paper's scales); u_c = d u_hat.  With G = grad u_hat,
+theta = tr G + d det G (so J = 1 + d theta) and cof F = I + d (tr G I - G^T):
+
+    P / s = (d/s) { mu_c [G + G^T + d (det G I + theta G)] / J + lambda_c theta cof F }
+
+free of cancellation however small d is (d = s = Ca in the device runs).
+"""
+
+from __future__ import annotations
+
+import ufl
+
+__all__ = ["kinematics", "first_piola", "cauchy_stress", "green_lagrange", "residual"]
+
+
+def kinematics(u, d):
+    """``(G, theta, J)`` with G = grad u_hat, theta = (J - 1)/d, J = det(I + d G)."""
+    G = ufl.grad(u)
+    theta = ufl.tr(G) + d * ufl.det(G)
+    return G, theta, 1 + d * theta
+
+
+def first_piola(u, mu, lmbda, d, s):
+    """Scaled first Piola-Kirchhoff stress P / s."""
+    G, theta, J = kinematics(u, d)
+    I = ufl.Identity(len(u))
+    cof = I + d * (ufl.tr(G) * I - G.T)
+    return (d / s) * (mu * (G + G.T + d * (ufl.det(G) * I + theta * G)) / J + lmbda * theta * cof)
+
+
+def cauchy_stress(u, mu, lmbda, d, s):
+    """Scaled Cauchy stress sigma_c / s = (d/s) [mu (G + G^T + d G G^T) / J + lambda theta I]."""
+    G, theta, J = kinematics(u, d)
+    return (d / s) * (mu * (G + G.T + d * G * G.T) / J + lmbda * theta * ufl.Identity(len(u)))
+
+
+def green_lagrange(u, d):
+    """Green-Lagrange strain E = (F^T F - I)/2 of u = d u_hat (in absolute units)."""
+    H = d * ufl.grad(u)
+    return 0.5 * (H + H.T + H.T * H)
+
+
+def residual(u, v, mu, lmbda, d, s, dx):
+    """Total Lagrangian residual  int P/s : grad v dX  (boundary loads added by the caller).
+
+    At a solution it equals the nodal reaction forces exerted ON the cell
+    by whatever holds its Dirichlet boundary.
+    """
+    return ufl.inner(first_piola(u, mu, lmbda, d, s), ufl.grad(v)) * dx

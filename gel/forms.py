@@ -1,0 +1,144 @@
+"""Weak forms of the steady poroelastic gel (pure UFL, shared with the monolithic reference).
+
+Unknowns: interstitial fluid velocity v_f, network displacement u (u_s),
+pore pressure p.  Steady state (v_s = 0) of model.md section 2:
+
+    div(phi_f v_f) = 0                                                   (G2)
+    div(phi_f sigma_f) - phi_f grad p - xi Ca phi_f phi_s v_f = 0           (G3)
+    div(phi_f sigma_f + phi_s sigma_s - p I) = 0              (G3 + G4, mixture)
+    sigma_f = Ca (grad v_f + grad v_f^T)
+    sigma_s = J^-1 (F F^T - I) + lambda_s (J - 1) I,   F = I + grad u_s
+    phi_s = phi_s0 / J  (G1 in Lagrangian form),  phi_f = 1 - phi_s
+
+Steady reference-configuration approximation: the equations are posed on the
+undeformed domain (gradients with respect to X, no mesh motion); the
+geometric terms this drops are of relative size max|F - I|.
+
+Units.  Lengths in L0, velocities in V0; stresses in a unit ``s`` (in units
+of mu_s) and displacements in a unit ``d`` (in units of L0): u_s = d u_hat,
+sigma = s sigma_hat.  With G = grad u_hat, theta = tr G + d det G:
+
+    J = 1 + d theta
+    sigma_hat_s = (d/s) [ (G + G^T + d G G^T) / J + lambda_s theta I ]
+    sigma_hat_f = (Ca/s) (grad v_f + grad v_f^T)
+
+which contains no cancellation however small d is.  The device runs use
+s = d = Ca (stress unit mu V0/L0, displacement unit Ca L0); s = d = 1 is the
+paper's unscaled form.
+
+Weak form (test functions w for v_f, z for u, q for p), n the gel's outward
+normal:
+
+    R_w = int phi_f sigma_f : grad w - p div(phi_f w) + (Ca/s) xi phi_f phi_s v_f.w dx
+          - int phi_f (sigma_f - p I) n . w ds
+    R_z = int (phi_f sigma_f + phi_s sigma_s) : grad z - p div z dx - int T . z ds
+    R_q = - int q div(phi_f v_f) dx
+
+where T = (phi_f sigma_f + phi_s sigma_s - p I) n is the total traction.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import ufl
+
+__all__ = ["GelCoefficients", "kinematics", "solid_fraction", "network_stress",
+           "fluid_stress", "total_stress", "bulk_residual", "fluid_interface_residual"]
+
+
+@dataclasses.dataclass
+class GelCoefficients:
+    """The coefficients of the gel forms, as UFL objects (usually ``fem.Constant``).
+
+    Attributes:
+        phi_s0: reference solid volume fraction.
+        xi: drag coefficient (dimensionless, xi L0^2 / mu).
+        lambda_s: network Lame modulus in units of the network shear modulus.
+        beta: slip coefficient of I16/I17 (beta mu / L0).
+        eta: interfacial permeability coefficient of I15 (mu eta / L0).
+        viscosity: Ca / s, the fluid viscosity in the stress unit s.
+        stiffness: d / s, the network shear modulus times d, in the stress unit s.
+        d: displacement unit in units of L0.
+    """
+
+    phi_s0: object
+    xi: object
+    lambda_s: object
+    beta: object
+    eta: object
+    viscosity: object
+    stiffness: object
+    d: object
+
+
+def kinematics(u, d):
+    """``(G, theta, J)``: G = grad u_hat, theta = (J - 1)/d = tr G + d det G, J = det(I + d G)."""
+    G = ufl.grad(u)
+    theta = ufl.tr(G) + d * ufl.det(G)
+    return G, theta, 1 + d * theta
+
+
+def solid_fraction(u, c: GelCoefficients):
+    """phi_s = phi_s0 / J."""
+    return c.phi_s0 / kinematics(u, c.d)[2]
+
+
+def network_stress(u, c: GelCoefficients):
+    """Scaled Cauchy stress of the neo-Hookean network, sigma_s / s."""
+    G, theta, J = kinematics(u, c.d)
+    I = ufl.Identity(len(u))
+    return c.stiffness * ((G + G.T + c.d * G * G.T) / J + c.lambda_s * theta * I)
+
+
+def fluid_stress(v_f, c: GelCoefficients):
+    """Scaled viscous stress of the interstitial fluid, sigma_f / s."""
+    return c.viscosity * (ufl.grad(v_f) + ufl.grad(v_f).T)
+
+
+def total_stress(v_f, u, p, c: GelCoefficients):
+    """Scaled total (mixture) stress phi_f sigma_f + phi_s sigma_s - p I."""
+    phi_s = solid_fraction(u, c)
+    return (1 - phi_s) * fluid_stress(v_f, c) + phi_s * network_stress(u, c) - p * ufl.Identity(len(u))
+
+
+def bulk_residual(v_f, u, p, w, z, q, c: GelCoefficients, dx, body_forces=None):
+    """R_w + R_z + R_q without boundary terms (see the module docstring).
+
+    ``body_forces`` = optional ``(f_w, f_z, f_q)`` UFL expressions subtracted
+    as ``f_w.w + f_z.z + f_q q`` (manufactured solutions).
+    """
+    phi_s = solid_fraction(u, c)
+    phi_f = 1 - phi_s
+    sf = fluid_stress(v_f, c)
+    r = (phi_f * ufl.inner(sf, ufl.grad(w)) - p * ufl.div(phi_f * w)
+         + c.viscosity * c.xi * phi_f * phi_s * ufl.dot(v_f, w)
+         + ufl.inner(phi_f * sf + phi_s * network_stress(u, c), ufl.grad(z)) - p * ufl.div(z)
+         - q * ufl.div(phi_f * v_f)) * dx
+    if body_forces is not None:
+        f_w, f_z, f_q = body_forces
+        r -= (ufl.dot(f_w, w) + ufl.dot(f_z, z) + f_q * q) * dx
+    return r
+
+
+def fluid_interface_residual(v_f, u, w, z, T, V, n, c: GelCoefficients, ds):
+    """Boundary terms on a fluid-gel interface (Gamma1, Gamma3), steady (v_s = 0).
+
+    The gel enforces (I14) both components, (I15) and (I17) given the fluid's
+    traction on the gel ``T`` = (Sigma - P I) n and velocity ``V``:
+
+        mixture (z):      T_total = T                                         (I14)
+        fluid phase (w):  phi_f (sigma_f - p I) n . n = phi_f T.n + phi_s (Ca/eta) (V - v_f).n
+                          phi_f sigma_f n . t         = T.t - (Ca phi_s^2 / beta) v_f.t
+
+    (the fluid-phase partial traction follows from I14 with I15 for the
+    normal and I17 for the tangential part).  Returned as a residual to add
+    to ``bulk_residual``.
+    """
+    phi_s = solid_fraction(u, c)
+    k_n = c.viscosity * phi_s / c.eta
+    k_t = c.viscosity * phi_s**2 / c.beta
+    vn, wn, Tn = ufl.dot(v_f, n), ufl.dot(w, n), ufl.dot(T, n)
+    partial_traction_w = ((1 - phi_s) * Tn * wn + ufl.dot(T, w - wn * n)
+                          + k_n * (ufl.dot(V, n) - vn) * wn - k_t * ufl.dot(v_f - vn * n, w - wn * n))
+    return -(partial_traction_w + ufl.dot(T, z)) * ds

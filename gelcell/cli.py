@@ -1,0 +1,195 @@
+"""The ``gelcell`` command line.
+
+Subcommands are built with :func:`add_case_arguments` (the options that
+define a case) and :func:`case_parameters_from_args` (turn them into a
+validated :class:`~gelcell.parameters.CaseParameters`), so every command
+reads a case the same way: defaults < ``--config`` file < command-line
+options.  A bad parameter prints its :class:`ParameterError` message and
+exits with status 2, before anything is meshed or solved.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import typing
+
+from mpi4py import MPI
+
+from gelcell.parameters import CASES, CaseParameters, ParameterError
+
+__all__ = ["main", "build_parser", "add_case_arguments", "case_parameters_from_args"]
+
+DESCRIPTION = """\
+gelcell: finite-element model of a microfluidic device in which a perfusate
+(Stokes flow) passes a poroelastic hydrogel with an embedded hyperelastic cell.
+Three field solvers (fluid, gel, cell) are coupled on the interfaces
+Gamma1 (fluid-gel), Gamma2 (gel-cell) and Gamma3 (second fluid-gel) for two
+device geometries: "shear" (gel chamber below a channel) and "normal"
+(flow through a gel layer between posts).  Results are reported in the
+paper's dimensionless units and in SI units (µm, µm/s, mPa).
+
+Runs in serial or under mpirun (e.g. mpirun -n 2 gelcell mesh normal --out m).
+"""
+
+EPILOG = """\
+Case options (--e, --ca, --cell-moduli, --gel-moduli, --mesh-size, --cell/--no-cell)
+override the values of a --config TOML file, which override the defaults of
+model.md (see examples/case_baseline_shear.toml).  Run "gelcell COMMAND --help"
+for the options of a command.
+"""
+
+
+def _number(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+
+
+def add_case_arguments(parser: argparse.ArgumentParser, case_positional: bool = True) -> None:
+    """Add the options that define a case to ``parser``.
+
+    ``case`` (positional, ``shear``/``normal``, optional if ``--config`` names
+    it), ``--config``, ``--cell/--no-cell``, ``--e``, ``--ca``,
+    ``--cell-moduli``, ``--gel-moduli``, ``--mesh-size``.
+    """
+    if case_positional:
+        parser.add_argument("case", nargs="?", choices=CASES,
+                            help="device geometry (default: [case] name of --config, else required)")
+    g = parser.add_argument_group("case options")
+    g.add_argument("--config", metavar="CASE.toml",
+                   help="TOML case file (tables [case] [physics] [dimensional] [cell] [geometry] "
+                        "[mesh] [coupling]); command-line options override it")
+    g.add_argument("--cell", action=argparse.BooleanOptionalAction, default=None,
+                   help="with or without the cell (default: with)")
+    g.add_argument("--e", type=_number, metavar="E",
+                   help="cell position e in units of L0: centre (X, -e) in the shear device "
+                        "(default 0.2), (e, 0.5) in the normal device (default 1.2)")
+    g.add_argument("--ca", type=_number, metavar="CA",
+                   help="Ca = mu V0 / (L0 mu_s) (default 3e-10); changes the flow speed V0 "
+                        "at fixed moduli")
+    g.add_argument("--cell-moduli", type=_number, metavar="M",
+                   help="cell moduli as a multiple of the gel's drained modulus phi_s0 mu_s "
+                        "(mu_c = M phi_s0 mu_s, Poisson ratio kept; default cell: E = 1 kPa, "
+                        "nu = 0.25, i.e. M = 1)")
+    g.add_argument("--gel-moduli", type=_number, metavar="X",
+                   help="multiply mu_s and lambda_s by X at fixed flow speed V0 and fixed cell "
+                        "moduli in Pa (so Ca -> Ca/X); applied after --cell-moduli")
+    g.add_argument("--mesh-size", type=_number, metavar="F",
+                   help="multiply every element size by F (2 = twice as coarse, 0.5 = twice as fine)")
+
+
+def case_parameters_from_args(args: argparse.Namespace) -> CaseParameters:
+    """Validated parameters from the options of :func:`add_case_arguments`.
+
+    Order: defaults, then ``--config``, then ``case``, ``--cell``, ``--ca``,
+    ``--e``, ``--mesh-size`` (validated together), then ``--cell-moduli``,
+    then ``--gel-moduli``.  Raises :class:`ParameterError`.
+    """
+    overrides = {"case.name": getattr(args, "case", None), "case.cell": args.cell,
+                 "physics.ca": args.ca, "geometry.e": args.e, "mesh.size_factor": args.mesh_size}
+    if args.config:
+        params = CaseParameters.from_toml(args.config, overrides)
+    else:
+        if overrides["case.name"] is None:
+            raise ParameterError("give the device geometry (shear or normal) or a --config file")
+        params = CaseParameters.from_dict({}, overrides, source="the command line")
+    if args.cell_moduli is not None:
+        params = params.with_cell_moduli(args.cell_moduli)
+    if args.gel_moduli is not None:
+        params = params.with_gel_moduli(args.gel_moduli)
+    return params
+
+
+# --------------------------------------------------------------------------- mesh
+def _counts_table(counts: dict) -> str:
+    from gelcell.geometry import Tag
+    columns = [c for c in ("fluid", "gel", "cell", "whole") if c in counts]
+    rows: list[tuple[str, str, list]] = [
+        ("cells", "-", [counts[c]["cells"] for c in columns])]
+    for t in (Tag.FLUID, Tag.GEL, Tag.CELL):
+        if t.name in counts.get("whole", {}).get("cells_per_tag", {}):
+            rows.append((f"  {t.name}", str(int(t)),
+                         [counts[c]["cells"] if c == t.name.lower() else
+                          counts[c]["cells_per_tag"][t.name] if c == "whole" else None
+                          for c in columns]))
+    rows.append(("nodes(P2)", "-", [counts[c]["nodes"] for c in columns]))
+    for t in Tag:
+        vals = [counts[c]["facets"].get(t.name) for c in columns]
+        if any(v is not None for v in vals):
+            rows.append((t.name, str(int(t)), vals))
+    width = max(10, max(len(r[0]) for r in rows) + 2)
+    lines = [f"{'':<{width}}{'tag':>5}" + "".join(f"{c:>9}" for c in columns)]
+    for label, tag, vals in rows:
+        lines.append(f"{label:<{width}}{tag:>5}"
+                     + "".join(f"{'-' if v is None else v:>9}" for v in vals))
+    return "\n".join(lines)
+
+
+def cmd_mesh(args: argparse.Namespace) -> int:
+    params = case_parameters_from_args(args)         # validated before any meshing
+    from femtools.io import atomic_directory, write_json
+    from gelcell.geometry import build_device
+    comm = MPI.COMM_WORLD
+    dev = build_device(params, comm)
+    counts = dev.counts()
+    out = os.path.abspath(args.out)
+    with atomic_directory(out, comm) as tmp:
+        if comm.rank == 0:
+            os.chmod(tmp, 0o755)                      # mkdtemp makes it private
+        dev.write_xdmf(tmp)
+        write_json(os.path.join(tmp, "counts.json"), counts, comm)
+        write_json(os.path.join(tmp, "parameters.json"), params.to_dict(), comm)
+        if comm.rank == 0:
+            for name in ("counts.json", "parameters.json"):
+                os.chmod(os.path.join(tmp, name), 0o644)      # mkstemp makes them private
+    if comm.rank == 0:
+        h = params.element_sizes()
+        print(f"gelcell mesh: {params.case} device {'with' if params.with_cell else 'without'} cell, "
+              f"size factor {params.mesh.size_factor:g} (h_cell {h['h_cell']:.4g}, "
+              f"h_layer {h['h_layer']:.4g}, h_fluid {h['h_fluid']:.4g}, h_gel {h['h_gel']:.4g}), "
+              f"{comm.size} rank(s), built in {dev.build_time:.2f} s")
+        print(_counts_table(counts))
+        print(f"wrote {', '.join(sorted(f for f in os.listdir(out) if f.endswith('.xdmf')))} "
+              f"(+ .h5), counts.json, parameters.json to {out}")
+    return 0
+
+
+# --------------------------------------------------------------------------- main
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="gelcell", description=DESCRIPTION, epilog=EPILOG,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    from gelcell import __version__
+    parser.add_argument("--version", action="version", version=f"gelcell {__version__}")
+    sub = parser.add_subparsers(dest="command", title="commands", metavar="COMMAND")
+    p = sub.add_parser("mesh", help="build the meshes of a device and write them as XDMF",
+                       description="Build the gmsh model of a device, the region meshes "
+                                   "(fluid, gel, cell) and the whole-device mesh with their "
+                                   "cell and facet tags; write them as XDMF (one file per region "
+                                   "+ whole.xdmf, readable in ParaView) with counts.json and "
+                                   "parameters.json into DIR (atomically), and print the number "
+                                   "of cells and facets per tag.")
+    add_case_arguments(p)
+    p.add_argument("--out", required=True, metavar="DIR", help="output directory (replaced)")
+    p.set_defaults(func=cmd_mesh)
+    return parser
+
+
+def main(argv: typing.Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except ParameterError as exc:
+        if MPI.COMM_WORLD.rank == 0:
+            print(f"gelcell {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,41 @@
+"""MPI-aware pytest helpers.
+
+* Every test module runs unchanged on 1 rank (``pytest``) and on several ranks
+  (``mpirun -n 2 python -m pytest``): tests reduce over ``MPI.COMM_WORLD``
+  before asserting.  Tests that only make sense on one process use the
+  ``skip_in_parallel`` marker (e.g. tests that themselves launch ``mpirun``).
+* ``tests/mpi_run.py`` (``run_mpi``) launches a script on N ranks from a serial
+  test and returns the JSON it prints; this directory is put on ``sys.path`` so
+  tests can ``from mpi_run import run_mpi``.
+* After each test every rank calls ``gc.collect()`` and meets at a barrier, so
+  that PETSc objects are destroyed collectively (as dolfinx's own conftest does).
+"""
+
+import gc
+import os
+import sys
+
+import pytest
+
+from mpi4py import MPI
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "skip_in_parallel: run only when MPI.COMM_WORLD has one rank")
+
+
+def pytest_runtest_setup(item):
+    if item.get_closest_marker("skip_in_parallel") and MPI.COMM_WORLD.size > 1:
+        pytest.skip("serial-only test")
+
+
+def pytest_runtest_teardown(item):
+    gc.collect()
+    MPI.COMM_WORLD.Barrier()
+
+
+@pytest.fixture
+def comm():
+    return MPI.COMM_WORLD

@@ -1,0 +1,42 @@
+"""Run a script under ``mpirun -n N`` and read the JSON it prints on its last line.
+
+Used by tests that check "same answer on 1 and 2 ranks": the test runs a
+small script from ``tests/mpi_scripts/`` with 1 and with 2 processes and
+compares the numbers.  The script must print one JSON object (rank 0 only)
+as its last line of standard output.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+SCRIPTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "mpi_scripts")
+
+
+def mpirun_available() -> bool:
+    return shutil.which("mpirun") is not None
+
+
+def run_mpi(script: str, nprocs: int = 2, args: list[str] | None = None, timeout: float = 600) -> dict:
+    """Run ``tests/mpi_scripts/<script>`` on ``nprocs`` ranks; return its JSON result."""
+    if nprocs > 1 and not mpirun_available():
+        pytest.skip("mpirun not available")
+    path = script if os.path.isabs(script) else os.path.join(SCRIPTS, script)
+    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+               OMPI_MCA_rmaps_base_oversubscribe="1", MPLBACKEND="Agg", PYTHONUNBUFFERED="1")
+    cmd = [sys.executable, path] + list(args or [])
+    if nprocs > 1:
+        cmd = ["mpirun", "-n", str(nprocs)] + cmd
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=timeout)
+    if proc.returncode != 0:
+        raise AssertionError(f"{' '.join(cmd)} failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
+    lines = [ln for ln in proc.stdout.splitlines() if ln.strip()]
+    if not lines:
+        raise AssertionError(f"{' '.join(cmd)} printed nothing; stderr:\n{proc.stderr[-3000:]}")
+    return json.loads(lines[-1])
