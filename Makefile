@@ -9,6 +9,7 @@ RUN_OUT   ?= results/shear-baseline
 export OMPI_ALLOW_RUN_AS_ROOT := 1
 export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM := 1
 export OMPI_MCA_rmaps_base_oversubscribe := 1
+export OMPI_MCA_mpi_yield_when_idle := 1
 export MPLBACKEND := Agg
 
 .PHONY: all setup run test test-serial test-mpi benchmark clean
@@ -17,7 +18,7 @@ all: test
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml scripts/ensure-system-packages
+$(STAMP): pyproject.toml scripts/ensure-system-packages $(wildcard */__init__.py)
 	./scripts/ensure-system-packages
 	test -x $(PY) || /usr/bin/python3 -m venv --system-site-packages $(VENV)
 	$(PY) -m pip install --no-build-isolation --no-deps -q -e .

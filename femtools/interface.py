@@ -85,7 +85,10 @@ class InterfaceNodes:
 
     def gather(self, local_values: np.ndarray) -> np.ndarray:
         """Replicated ``(N, bs)`` array from values given at ``local_blocks`` (owned rows used)."""
-        local_values = np.asarray(local_values).reshape(len(self.local_blocks), -1)
+        local_values = np.asarray(local_values)
+        if local_values.ndim != 2:
+            # a rank without interface nodes has size 0: reshape(0, -1) is ambiguous
+            local_values = local_values.reshape(len(self.local_blocks), -1 if local_values.size else self.bs)
         out = np.zeros((self.size, local_values.shape[1]))
         idx, vals = self.index[self.owned], local_values[self.owned]
         if self.comm.size > 1:

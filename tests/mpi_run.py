@@ -29,7 +29,8 @@ def run_mpi(script: str, nprocs: int = 2, args: list[str] | None = None, timeout
         pytest.skip("mpirun not available")
     path = script if os.path.isabs(script) else os.path.join(SCRIPTS, script)
     env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
-               OMPI_MCA_rmaps_base_oversubscribe="1", MPLBACKEND="Agg", PYTHONUNBUFFERED="1")
+               OMPI_MCA_rmaps_base_oversubscribe="1", OMPI_MCA_mpi_yield_when_idle="1",
+               MPLBACKEND="Agg", PYTHONUNBUFFERED="1")
     cmd = [sys.executable, path] + list(args or [])
     if nprocs > 1:
         cmd = ["mpirun", "-n", str(nprocs)] + cmd

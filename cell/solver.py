@@ -1,0 +1,522 @@
+"""The neo-Hookean cell as a field solver (model.md sections 2, 3 and 6).
+
+The cell Omega_C is a compressible neo-Hookean solid in plane strain,
+
+    div_X P = 0 in Omega_C,   P = J sigma_c F^-T,
+    sigma_c = mu_c J^-1 (F F^T - I) + lambda_c (J - 1) I,   F = I + grad_X u_c,
+
+posed in the total Lagrangian form on the reference (undeformed) mesh, with
+P2 (isoparametric) displacement and Newton's method with the exact Jacobian
+(``femtools.linalg.NewtonSolver``, which keeps a factorised Jacobian for as
+long as it contracts).  The weak form is ``cell.forms.residual``, shared with
+the monolithic reference.
+
+Units.  Lengths in the mesh's unit (L0), moduli ``mu``, ``lmbda`` in units of
+mu_s, displacement unknown u_hat in the unit ``d = displacement_scale`` (in
+L0: u_c = d u_hat) and stresses in the unit ``s = stress_scale`` (in mu_s).
+s = d = 1 is the paper's unscaled form; s = d = Ca is the device scaling.
+
+Boundary conditions:
+  * interfaces (Gamma2): Dirichlet displacement u_hat = g, both components;
+  * symmetry: u_hat[c] = 0 (zero normal displacement, zero tangential traction);
+  * dirichlet (tests): prescribed u_hat, all or one component;
+  * tractions (tests): dead load  P N = s t0  with N the reference outward normal;
+  * every other boundary is traction free.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import typing
+
+import numpy as np
+
+from mpi4py import MPI
+from petsc4py import PETSc
+
+import basix
+import ufl
+from dolfinx import fem
+
+from cell import forms
+from femtools.functions import quadrature_measure, von_mises
+from femtools.interface import InterfaceNodes
+from femtools.linalg import NewtonSolver, assemble_residual_vector
+from femtools.solver import FieldSolver
+
+__all__ = ["NeoHookeanCellSolver"]
+
+logger = logging.getLogger(__name__)
+
+Tags = typing.Union[int, typing.Iterable[int]]
+
+
+def _tag_list(tags: Tags) -> list[int]:
+    return [int(tags)] if np.isscalar(tags) else [int(t) for t in tags]
+
+
+class NeoHookeanCellSolver(FieldSolver):
+    """Plane-strain neo-Hookean cell: Dirichlet displacement in, nodal reaction forces out.
+
+    Args:
+        mesh: the cell's mesh (reference configuration; P1 or P2 geometry).
+        facet_tags: its facet tags.
+        mu: shear modulus mu_c (units of mu_s), > 0.
+        lmbda: Lame modulus lambda_c (units of mu_s); the Poisson ratio
+            nu = lambda/(2 (lambda + mu)) must lie in (-1, 0.5).
+        stress_scale: stress unit ``s`` in units of mu_s, > 0.
+        displacement_scale: displacement unit ``d`` in units of L0, > 0.
+        interfaces: ``{name: tags}``; Dirichlet-displacement interfaces (Gamma2).
+            Input ``"displacement"`` (N, 2) in units of d; output ``"force"``.
+        symmetry: ``[(tags, component)]``: u[component] = 0 on those facets
+            (a flat edge of the cell on a symmetry line; component 0 or 1).
+        dirichlet: ``[(tags, value)]`` or ``[(tags, value, component)]``:
+            prescribed displacement in units of d; ``value`` a constant
+            ((2,) array, or a scalar with ``component``) or a callable
+            ``x -> (2, n)`` (or ``(n,)``) array as for ``Function.interpolate``.
+        tractions: ``[(tags, value)]``: dead reference traction P N = s t0 on
+            those facets, ``t0`` in units of s; ``value`` a (2,) constant, a
+            callable ``x -> (2, n)`` (interpolated in P2) or a UFL expression
+            on this mesh (e.g. ``-p * ufl.FacetNormal(mesh)`` with ``p`` a
+            ``fem.Constant``, which keeps a pressure exactly self-equilibrated).
+        remove_rigid_modes: for pure traction problems (no interfaces,
+            symmetry or dirichlet): remove the three rigid-body modes by point
+            constraints, see below.
+        name: name used in messages and PETSc prefixes.
+        quadrature_degree: degree of every dx/ds of the forms (the monolithic
+            reference must use the same).
+        petsc_options: options of the direct solver (default MUMPS LU).
+        newton_rtol: relative incremental tolerance |du| <= rtol |u|.
+        reuse: Jacobian reuse of the Newton solver, "adaptive" or "never".
+        rigid_mode_rtol: with ``remove_rigid_modes``, the largest resultant
+            (force and moment) the point constraints may carry, relative to
+            the total applied load, before ``solve`` raises.
+
+    Rigid-body modes.  A cell loaded by tractions only floats: its tangent
+    stiffness has the rigid modes (two translations, one rotation) as null
+    space.  They are removed by three point constraints: u = 0 at the node A
+    that is lexicographically smallest in (x, y) and u_y = 0 at the node B
+    with the largest x.  These supports are statically determinate (exactly
+    one constraint per rigid mode, the rotation held by the lever arm
+    x_B - x_A > 0), so for a self-equilibrated load (zero resultant force
+    and moment, which a pressure ``-p N`` is exactly, also on curved P2
+    facets) they carry no reaction and the strains and stresses are those of
+    the free body; the displacement is the free body's up to the rigid motion
+    that fixes A and the direction AB.  Unlike Lagrange multipliers they keep
+    the Jacobian an ordinary sparse matrix, so the shared factorise-once
+    Newton solver serves unchanged.  After each solve the reactions at the
+    pins are measured (``rigid_mode_reaction``); if they exceed
+    ``rigid_mode_rtol`` of the applied load, the load was not self-equilibrated
+    (or the strains are so large that the dead load's moment about the
+    deformed body is no longer balanced) and ``solve`` raises.
+
+    Interface data (arrays over ``interface_points(name)``, replicated, sorted):
+        input ``"displacement"`` (N, 2): u_hat on the interface, units of d.
+        output ``"force"`` (N, 2): nodal forces ON the cell at the interface
+            nodes, R_j = int P/s : grad phi_j dX (``forms.residual`` assembled
+            with no boundary conditions and no boundary loads), units of
+            s * L0 (per unit depth), reference configuration.  At a solution
+            R_j = int (P N / s) phi_j dS: the consistent nodal form of the
+            traction that the surroundings (the gel) exert on the cell, N
+            pointing out of the cell.  The gel receives -R_j.  Sum_j R_j is
+            the net force on the cell through the interface.  A node shared
+            with another boundary carries that boundary's share as well (its
+            traction or its reaction).
+    """
+
+    name = "cell"
+
+    def __init__(self, mesh, facet_tags, *, mu: float, lmbda: float, stress_scale: float = 1.0,
+                 displacement_scale: float = 1.0, interfaces: dict[str, Tags] | None = None,
+                 symmetry: typing.Sequence = (), dirichlet: typing.Sequence = (),
+                 tractions: typing.Sequence = (), remove_rigid_modes: bool = False,
+                 name: str = "cell", quadrature_degree: int = 4, petsc_options: dict | None = None,
+                 newton_rtol: float = 1e-11, reuse: str = "adaptive", rigid_mode_rtol: float = 1e-6):
+        super().__init__()
+        t0 = time.perf_counter()
+        self.name = str(name)
+        _validate_parameters(mu, lmbda, stress_scale, displacement_scale, quadrature_degree,
+                             newton_rtol, reuse, rigid_mode_rtol)
+        interfaces = dict(interfaces or {})
+        if remove_rigid_modes and (interfaces or symmetry or dirichlet):
+            raise ValueError(f"{self.name}: remove_rigid_modes=True is for pure traction problems; "
+                             f"it cannot be combined with interfaces, symmetry or dirichlet")
+        if not (remove_rigid_modes or interfaces or symmetry or dirichlet):
+            raise ValueError(f"{self.name}: no displacement is prescribed anywhere; give interfaces, "
+                             f"symmetry or dirichlet, or remove_rigid_modes=True for a pure traction load")
+        self.mesh, self.facet_tags = mesh, facet_tags
+        self.comm: MPI.Comm = mesh.comm
+        self.quadrature_degree = int(quadrature_degree)
+        self.rigid_mode_rtol = float(rigid_mode_rtol)
+        self._fdim = mesh.topology.dim - 1
+        mesh.topology.create_connectivity(self._fdim, mesh.topology.dim)
+
+        self.V = fem.VectorFunctionSpace(mesh, ("Lagrange", 2))
+        self.u = fem.Function(self.V, name="u_hat")
+        v = ufl.TestFunction(self.V)
+        c = lambda value: fem.Constant(mesh, PETSc.ScalarType(value))  # noqa: E731
+        self._mu, self._lmbda = c(mu), c(lmbda)
+        self._d, self._s = c(displacement_scale), c(stress_scale)
+        self.dx = quadrature_measure("dx", mesh, degree=self.quadrature_degree)
+        self.ds = quadrature_measure("ds", mesh, facet_tags, degree=self.quadrature_degree)
+
+        internal = forms.residual(self.u, v, self._mu, self._lmbda, self._d, self._s, self.dx)
+        self._internal_form = fem.form(internal)
+        self._tractions: list[tuple[list[int], object]] = []
+        F = internal
+        external = None
+        for k, entry in enumerate(tractions):
+            tags, value = _unpack(entry, 2, f"tractions[{k}]")
+            self._facets(tags, f"tractions[{k}]")
+            t = self._traction_coefficient(value, f"tractions[{k}]")
+            self._tractions.append((tags, t))
+            term = ufl.inner(t, v) * self.ds(tuple(tags))
+            external = term if external is None else external + term
+        if external is not None:
+            F = internal - external
+            self._external_form = fem.form(external)
+        else:
+            self._external_form = None
+
+        bcs = []
+        self._interface_bc_values: dict[str, fem.Function] = {}
+        for iname, tags in interfaces.items():
+            tags = _tag_list(tags)
+            facets = self._facets(tags, f"interfaces[{iname!r}]")
+            g = fem.Function(self.V, name=f"u_{iname}")
+            bcs.append(fem.dirichletbc(g, fem.locate_dofs_topological(self.V, self._fdim, facets)))
+            self._interface_bc_values[iname] = g
+            self._add_interface(iname, InterfaceNodes(self.V, facet_tags, tags), {"displacement": 2})
+        for k, entry in enumerate(symmetry):
+            tags, comp = _unpack(entry, 2, f"symmetry[{k}]")
+            comp = _component(comp, f"symmetry[{k}]")
+            facets = self._facets(tags, f"symmetry[{k}]")
+            dofs = fem.locate_dofs_topological(self.V.sub(comp), self._fdim, facets)
+            bcs.append(fem.dirichletbc(PETSc.ScalarType(0), dofs, self.V.sub(comp)))
+        self._dirichlet: list[tuple[int | None, fem.Function]] = []
+        for k, entry in enumerate(dirichlet):
+            if len(entry) not in (2, 3):
+                raise ValueError(f"dirichlet[{k}] must be (tags, value) or (tags, value, component), "
+                                 f"got {entry!r}")
+            tags, value = _tag_list(entry[0]), entry[1]
+            comp = _component(entry[2], f"dirichlet[{k}]") if len(entry) == 3 else None
+            facets = self._facets(tags, f"dirichlet[{k}]")
+            if comp is None:
+                g = fem.Function(self.V)
+                bcs.append(fem.dirichletbc(g, fem.locate_dofs_topological(self.V, self._fdim, facets)))
+            else:
+                Vc, _ = self.V.sub(comp).collapse()
+                g = fem.Function(Vc)
+                dofs = fem.locate_dofs_topological((self.V.sub(comp), Vc), self._fdim, facets)
+                bcs.append(fem.dirichletbc(g, dofs, self.V.sub(comp)))
+            self._dirichlet.append((comp, g))
+            self.set_dirichlet(k, value)
+
+        self._pins = None
+        self.rigid_mode_reaction = None
+        if remove_rigid_modes:
+            pin_bcs, self._pins = self._point_constraints()
+            bcs += pin_bcs
+        self.bcs = bcs
+        self._newton = NewtonSolver(F, self.u, bcs, name=self.name, rtol=newton_rtol, reuse=reuse,
+                                    petsc_options=petsc_options)
+        self._compiled: dict[str, object] = {}
+        self.timing["setup"] = time.perf_counter() - t0
+
+    # -- construction helpers ----------------------------------------------
+    def _facets(self, tags: list[int], what: str) -> np.ndarray:
+        """Local facets with any of ``tags``; raise if none exists on any rank."""
+        facets = np.unique(np.hstack([self.facet_tags.find(t) for t in tags])).astype(np.int32)
+        if self.comm.allreduce(facets.size, op=MPI.SUM) == 0:
+            present = sorted(set(self.comm.allreduce(set(np.unique(self.facet_tags.values).tolist()),
+                                                     op=MPI.BOR)))
+            raise ValueError(f"{self.name}: {what}: no facets tagged {tags}; the mesh has tags {present}")
+        return facets
+
+    def _traction_coefficient(self, value, what: str):
+        """A UFL expression stays as it is; constants and callables go into a P2 Function."""
+        if isinstance(value, ufl.core.expr.Expr):
+            if ufl.domain.extract_unique_domain(value) not in (None, self.mesh.ufl_domain()):
+                raise ValueError(f"{self.name}: {what}: the UFL traction lives on another mesh")
+            if value.ufl_shape != (2,):
+                raise ValueError(f"{self.name}: {what}: traction must be a 2-vector, "
+                                 f"got shape {value.ufl_shape}")
+            return value
+        t = fem.Function(self.V)
+        self._set_function(t, value, what)
+        return t
+
+    def _set_function(self, g: fem.Function, value, what: str) -> None:
+        """Set ``g`` (vector or scalar Function) from a constant or a callable."""
+        bs = g.function_space.dofmap.index_map_bs
+        if callable(value):
+            g.interpolate(value)
+        else:
+            value = np.asarray(value, dtype=float).reshape(-1)
+            if value.size != bs:
+                raise ValueError(f"{self.name}: {what}: expected {bs} component(s), got {value.size}")
+            g.x.array.reshape(-1, bs)[:] = value
+        if not np.all(np.isfinite(g.x.array)):
+            raise FloatingPointError(f"{self.name}: {what}: value contains NaN or Inf")
+        g.x.scatter_forward()
+
+    def _point_constraints(self):
+        """Pins: u = 0 at the smallest node A (in x, then y), u_y = 0 at the node B of largest x."""
+        n_owned = self.V.dofmap.index_map.size_local
+        X = self.V.tabulate_dof_coordinates()[:n_owned, :2]
+        cand = []
+        if n_owned:
+            a = np.lexsort((X[:, 1], X[:, 0]))[0]
+            b = np.lexsort((-X[:, 1], -X[:, 0]))[0]
+            cand = [X[a], X[b]]
+        cand = [p for c in self.comm.allgather(cand) for p in c]
+        XA = min(cand, key=lambda p: (p[0], p[1]))
+        XB = min(cand, key=lambda p: (-p[0], -p[1]))
+        size = max(np.ptp([p[0] for p in cand]), np.ptp([p[1] for p in cand]))
+        if XB[0] - XA[0] <= 1e-8 * size:
+            raise ValueError(f"{self.name}: the mesh has no extent in x; cannot pin the rotation")
+        tol = 1e-10 * (1 + size)
+
+        def at(P):
+            return lambda x: (np.abs(x[0] - P[0]) < tol) & (np.abs(x[1] - P[1]) < tol)
+        dofs_a = fem.locate_dofs_geometrical(self.V, at(XA))
+        V1, _ = self.V.sub(1).collapse()
+        dofs_b = fem.locate_dofs_geometrical((self.V.sub(1), V1), at(XB))[0]
+        bcs = [fem.dirichletbc(np.zeros(2, dtype=PETSc.ScalarType), dofs_a, self.V),
+               fem.dirichletbc(PETSc.ScalarType(0), dofs_b, self.V.sub(1))]
+        bs = self.V.dofmap.index_map_bs
+        owned = n_owned * bs
+        # unrolled dofs: A's x and y, B's y; owned copies only (for the reaction sums)
+        pins = {"A": np.asarray(XA), "B": np.asarray(XB),
+                "ax": [d * bs for d in dofs_a if d * bs < owned],
+                "ay": [d * bs + 1 for d in dofs_a if d * bs + 1 < owned],
+                "by": [int(d) for d in dofs_b if d < owned]}
+        return bcs, pins
+
+    # -- FieldSolver interface ------------------------------------------------
+    def _set_input(self, interface: str, key: str, values: np.ndarray) -> None:
+        g = self._interface_bc_values[interface]
+        self.interface_nodes(interface).to_function(values, g)
+        g.x.scatter_forward()
+
+    def _solve(self) -> None:
+        iterations = self._newton.solve()
+        logger.debug("%s: Newton converged in %d iterations, corrections %s", self.name, iterations,
+                     self._newton.history)
+        if self._pins is not None:
+            self._check_rigid_modes()
+
+    def interface_data(self, name: str) -> dict[str, np.ndarray]:
+        """``{"force": (N, 2)}``: nodal forces on the cell (units s * L0), see the class docstring."""
+        nodes = self.interface_nodes(name)
+        R = assemble_residual_vector(self._internal_form)
+        try:
+            return {"force": nodes.from_array(R.array)}
+        finally:
+            R.destroy()
+
+    # -- load updates (tests, load stepping) ------------------------------------
+    def set_dirichlet(self, index: int, value) -> None:
+        """Change the value of ``dirichlet[index]`` (constant or callable, units of d)."""
+        _, g = self._dirichlet[index]
+        self._set_function(g, value, f"dirichlet[{index}]")
+
+    def set_traction(self, index: int, value) -> None:
+        """Change ``tractions[index]`` (constant or callable, units of s; not for UFL tractions)."""
+        _, t = self._tractions[index]
+        if not isinstance(t, fem.Function):
+            raise TypeError(f"{self.name}: tractions[{index}] is a UFL expression; change its "
+                            f"Constants instead")
+        self._set_function(t, value, f"tractions[{index}]")
+
+    # -- rigid modes -------------------------------------------------------------
+    def _check_rigid_modes(self) -> None:
+        """Measure what the pins carry; raise if the load was not self-equilibrated."""
+        r = assemble_residual_vector(self._newton.F)      # F_int - F_ext, no bcs: pin reactions
+        f = assemble_residual_vector(self._external_form) if self._external_form else None
+        p = self._pins
+        loc = np.array([r.array[p["ax"]].sum(), r.array[p["ay"]].sum(), r.array[p["by"]].sum(),
+                        np.abs(f.array).sum() if f is not None else 0.0])
+        r.destroy()
+        if f is not None:
+            f.destroy()
+        ax, ay, by, load = self.comm.allreduce(loc, op=MPI.SUM)
+        arm = p["B"][0] - p["A"][0]
+        self.rigid_mode_reaction = {"force": np.array([ax, ay + by]), "moment": arm * by,
+                                    "relative": float(np.hypot(np.hypot(ax, ay + by), by) / load)
+                                    if load > 0 else 0.0}
+        if self.rigid_mode_reaction["relative"] > self.rigid_mode_rtol:
+            raise RuntimeError(
+                f"{self.name}: the point constraints that remove the rigid modes carry "
+                f"{self.rigid_mode_reaction['relative']:.2e} of the applied load (tolerance "
+                f"{self.rigid_mode_rtol:.1e}): the traction load is not self-equilibrated "
+                f"(resultant force {-self.rigid_mode_reaction['force']}, moment about A "
+                f"{-self.rigid_mode_reaction['moment']:.3e}, units of s L0)")
+
+    # -- accessors ---------------------------------------------------------------
+    @property
+    def displacement(self) -> fem.Function:
+        """The P2 displacement unknown u_hat (units of d: u_c = d u_hat).
+
+        It is also the initial guess of the next ``solve()`` (set it to start
+        Newton elsewhere); its Dirichlet values are overwritten by the solve.
+        """
+        return self.u
+
+    @property
+    def stress_scale(self) -> float:
+        return float(self._s.value)
+
+    @property
+    def displacement_scale(self) -> float:
+        return float(self._d.value)
+
+    @property
+    def stats(self) -> dict:
+        """Newton/linear-solver counters (factorisations, solves, times)."""
+        return self._newton.stats
+
+    @property
+    def newton_history(self) -> list[float]:
+        """Relative corrections |du|/|u| of the last solve."""
+        return list(self._newton.history)
+
+    def cauchy_stress_expression(self):
+        """UFL Cauchy stress sigma_c in units of mu_s (= s sigma_hat), in-plane 2x2 block."""
+        return self._s * forms.cauchy_stress(self.u, self._mu, self._lmbda, self._d, self._s)
+
+    def green_lagrange_expression(self):
+        """UFL Green-Lagrange strain E = (F^T F - I)/2 (dimensionless), in-plane 2x2 block."""
+        return forms.green_lagrange(self.u, self._d)
+
+    def von_mises_expressions(self):
+        """UFL ``(stress, strain)`` von Mises measures, both by the 2D formula of model.md:
+
+            sigma_v = sqrt(sxx^2 + syy^2 - sxx syy + 3 sxy^2)   (sigma_c, units of mu_s)
+            e_v     = sqrt(Exx^2 + Eyy^2 - Exx Eyy + 3 Exy^2)   (Green-Lagrange E)
+
+        The out-of-plane components (sigma_zz, E_zz = 0) are not included.
+        """
+        return von_mises(self.cauchy_stress_expression()), von_mises(self.green_lagrange_expression())
+
+    def _dg(self, expr, degree: int, name: str) -> fem.Function:
+        shape = expr.ufl_shape
+        if shape == ():
+            W = fem.FunctionSpace(self.mesh, ("DG", degree))
+        else:
+            W = fem.TensorFunctionSpace(self.mesh, ("DG", degree), shape=shape)
+        f = fem.Function(W, name=name)
+        f.interpolate(fem.Expression(expr, W.element.interpolation_points()))
+        f.x.scatter_forward()
+        return f
+
+    def cauchy_stress(self, degree: int = 1) -> fem.Function:
+        """Cauchy stress (units of mu_s) interpolated cell-wise into DG ``degree`` (for output)."""
+        return self._dg(self.cauchy_stress_expression(), degree, "sigma_c")
+
+    def green_lagrange_strain(self, degree: int = 1) -> fem.Function:
+        """Green-Lagrange strain interpolated cell-wise into DG ``degree`` (for output)."""
+        return self._dg(self.green_lagrange_expression(), degree, "E_c")
+
+    def von_mises_stress(self, degree: int = 1) -> fem.Function:
+        return self._dg(self.von_mises_expressions()[0], degree, "von_mises_stress")
+
+    def von_mises_strain(self, degree: int = 1) -> fem.Function:
+        return self._dg(self.von_mises_expressions()[1], degree, "von_mises_strain")
+
+    def von_mises_range(self) -> dict[str, tuple[float, float]]:
+        """``{"stress": (min, max), "strain": (min, max)}`` over the cell.
+
+        Evaluated cell by cell (each cell's own one-sided values) at the six
+        P2 nodes (vertices and edge midpoints) and at the quadrature points
+        of degree ``quadrature_degree``, on owned cells only, then reduced
+        over the ranks: the set of points does not depend on the partition.
+        Stress in units of mu_s, strain dimensionless.
+        """
+        if "vm" not in self._compiled:
+            cell = basix.CellType.triangle
+            lattice = basix.create_lattice(cell, 2, basix.LatticeType.equispaced, True)
+            quad, _ = basix.make_quadrature(cell, self.quadrature_degree)
+            self._compiled["vm"] = fem.Expression(ufl.as_vector(self.von_mises_expressions()),
+                                                  np.vstack([lattice, quad]))
+        expr = self._compiled["vm"]
+        cells = np.arange(self.mesh.topology.index_map(self.mesh.topology.dim).size_local,
+                          dtype=np.int32)
+        values = expr.eval(cells).reshape(cells.size, -1, 2)
+        if values.size and not np.all(np.isfinite(values)):
+            raise FloatingPointError(f"{self.name}: von Mises measure contains NaN or Inf")
+        lo = values.min(axis=(0, 1)) if values.size else np.full(2, np.inf)
+        hi = values.max(axis=(0, 1)) if values.size else np.full(2, -np.inf)
+        self.comm.Allreduce(MPI.IN_PLACE, lo, op=MPI.MIN)     # numpy buffers: upper-case
+        self.comm.Allreduce(MPI.IN_PLACE, hi, op=MPI.MAX)
+        return {"stress": (float(lo[0]), float(hi[0])), "strain": (float(lo[1]), float(hi[1]))}
+
+    def centroid_displacement(self) -> np.ndarray:
+        """Area-weighted mean of u_c over the reference cell, (2,), units of L0 (= d * mean u_hat)."""
+        if "centroid" not in self._compiled:
+            one = fem.Constant(self.mesh, PETSc.ScalarType(1.0))
+            self._compiled["centroid"] = [fem.form(self.u[i] * self.dx) for i in range(2)] + \
+                [fem.form(one * self.dx)]
+        vals = np.array([fem.assemble_scalar(f) for f in self._compiled["centroid"]])
+        vals = self.comm.allreduce(vals, op=MPI.SUM) if self.comm.size > 1 else vals
+        return self.displacement_scale * vals[:2] / vals[2]
+
+    def max_displacement(self) -> float:
+        """max |u_c| over the P2 nodes, units of L0."""
+        n = self.V.dofmap.index_map.size_local
+        local = np.linalg.norm(self.u.x.array.reshape(-1, 2)[:n], axis=1)
+        m = self.comm.allreduce(float(local.max(initial=0.0)), op=MPI.MAX)
+        return self.displacement_scale * m
+
+    def boundary_force(self, tags: Tags) -> np.ndarray:
+        """Net force on the cell through the facets ``tags``: sum of the nodal forces, (2,), units s L0.
+
+        The nodal forces are those of the ``"force"`` output (internal
+        forces, no loads, no boundary conditions) at every node of those
+        facets; nodes shared with other boundaries count fully.
+        """
+        tags = _tag_list(tags)
+        facets = self._facets(tags, "boundary_force")
+        blocks = fem.locate_dofs_topological(self.V, self._fdim, facets)
+        blocks = blocks[blocks < self.V.dofmap.index_map.size_local]
+        R = assemble_residual_vector(self._internal_form)
+        local = R.array.reshape(-1, 2)[blocks].sum(axis=0)
+        R.destroy()
+        return self.comm.allreduce(local, op=MPI.SUM) if self.comm.size > 1 else local
+
+
+def _unpack(entry, n: int, what: str):
+    if len(entry) != n:
+        raise ValueError(f"{what} must be a tuple of {n} items (tags, value), got {entry!r}")
+    return _tag_list(entry[0]), entry[1]
+
+
+def _component(comp, what: str) -> int:
+    if comp not in (0, 1):
+        raise ValueError(f"{what}: component must be 0 (x) or 1 (y), got {comp!r}")
+    return int(comp)
+
+
+def _validate_parameters(mu, lmbda, s, d, qdeg, rtol, reuse, rigid_rtol) -> None:
+    """Raise ValueError naming the first parameter outside its range."""
+    for key, value in dict(mu=mu, lmbda=lmbda, stress_scale=s, displacement_scale=d).items():
+        if not isinstance(value, (int, float, np.floating, np.integer)) or not np.isfinite(value):
+            raise ValueError(f"{key} must be a finite number, got {value!r}")
+    if not mu > 0:
+        raise ValueError(f"mu must be > 0 (shear modulus), got {mu}")
+    if not lmbda > -2.0 * mu / 3.0:
+        nu = lmbda / (2 * (lmbda + mu)) if lmbda + mu != 0 else float("inf")
+        raise ValueError(f"Poisson ratio nu = lmbda/(2 (lmbda + mu)) = {nu:.4g} (lmbda={lmbda}, mu={mu}) "
+                         f"must lie in (-1, 0.5), i.e. lmbda > -2 mu / 3")
+    for key, value in dict(stress_scale=s, displacement_scale=d).items():
+        if not value > 0:
+            raise ValueError(f"{key} must be > 0, got {value}")
+    if int(qdeg) != qdeg or qdeg < 1:
+        raise ValueError(f"quadrature_degree must be a positive integer, got {qdeg!r}")
+    if not (np.isfinite(rtol) and 0 < rtol < 1):
+        raise ValueError(f"newton_rtol must lie in (0, 1), got {rtol!r}")
+    if reuse not in ("adaptive", "never"):
+        raise ValueError(f"reuse must be 'adaptive' or 'never', got {reuse!r}")
+    if not (np.isfinite(rigid_rtol) and rigid_rtol > 0):
+        raise ValueError(f"rigid_mode_rtol must be > 0, got {rigid_rtol!r}")

@@ -1,0 +1,630 @@
+"""Steady Stokes field solver (Taylor–Hood P2/P1) with interface data in and out.
+
+Equations (dimensionless, any stress unit; ``viscosity`` is mu in that unit)::
+
+    -div(Sigma - P I) = f,   div V = 0   in the fluid,   Sigma = mu (grad V + grad V^T)
+
+Boundary conditions, per tagged boundary:
+
+* ``velocity_bcs``: V = g (full vector);
+* ``component_bcs``: V_c = g_c (one Cartesian component, e.g. V_y = 0 on a
+  symmetry line; the other component is traction-free);
+* interfaces (``FluidInterface``), each split into its normal and tangential
+  part, ``"robin"`` or ``"dirichlet"``::
+
+      robin:      t.n + alpha_n V.n = g_N.n        t_tau + alpha_t V_tau = g_T,tau
+      dirichlet:  V.n = g_V.n                      V_tau = g_V,tau
+
+  with ``t = (Sigma - P I) n`` the traction exerted ON the fluid, ``n`` the
+  fluid's OUTWARD unit normal and ``w_tau = w - (w.n) n``.  alpha = 0 is a
+  prescribed traction.  A single Dirichlet part needs a straight,
+  axis-aligned interface (it becomes a component condition);
+* every other boundary is traction-free ("do nothing": t = 0).
+
+Consistent interface traction.  The traction returned on an interface is the
+P2 field lambda on the interface defined by
+
+    int_Gamma lambda . v ds = R(v) := bulk residual (V, P; v, q = 0)   for all P2 v on Gamma,
+
+i.e. the reaction of the weak form without the interface terms (at an exact
+solution R(v) = int t . v ds), recovered with the interface mass matrix.
+Where a velocity component of an interface node is fixed by ANOTHER
+boundary's Dirichlet condition (the ends of Gamma1 on a wall, the inflow or a
+symmetry line), that component of lambda is set to zero and left out of the
+mass-matrix solve: the reaction there also carries the other boundary's
+force.  This is a local O(h) effect at the interface ends; the monolithic
+reference pins its multiplier in the same way.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+import typing
+
+import numpy as np
+
+from mpi4py import MPI
+from petsc4py import PETSc
+
+import ufl
+from dolfinx import cpp as _cpp, fem, mesh as dmesh
+
+from femtools.functions import quadrature_measure
+from femtools.interface import InterfaceNodes
+from femtools.linalg import LinearSolver, SolverStats
+from femtools.solver import FieldSolver
+from fluid import forms
+
+__all__ = ["FluidInterface", "StokesSolver"]
+
+_KINDS = ("robin", "dirichlet")
+
+
+@dataclasses.dataclass
+class FluidInterface:
+    """Which interface condition the fluid enforces on a tagged interface.
+
+    Attributes:
+        tags: facet tag(s) of the interface in the fluid mesh.
+        normal: ``"robin"`` (t.n + alpha_n V.n = g_N.n) or ``"dirichlet"``
+            (V.n = g_V.n) for the normal part.
+        tangential: ``"robin"`` (t_tau + alpha_t V_tau = g_T,tau) or
+            ``"dirichlet"`` (V_tau = g_V,tau) for the tangential part.
+        alpha_n: normal Robin coefficient (>= 0, stress per velocity); only
+            with ``normal="robin"``.
+        alpha_t: tangential Robin coefficient (>= 0); only with
+            ``tangential="robin"``.
+    """
+
+    tags: typing.Union[int, typing.Sequence[int]]
+    normal: str = "robin"
+    tangential: str = "robin"
+    alpha_n: float = 0.0
+    alpha_t: float = 0.0
+
+    def __post_init__(self):
+        self.tags = [int(self.tags)] if np.isscalar(self.tags) else [int(t) for t in self.tags]
+        if not self.tags:
+            raise ValueError("FluidInterface: tags must name at least one facet tag")
+        for part in ("normal", "tangential"):
+            kind = getattr(self, part)
+            if kind not in _KINDS:
+                raise ValueError(f"FluidInterface: {part} must be one of {_KINDS}, got {kind!r}")
+        for part, alpha in (("normal", "alpha_n"), ("tangential", "alpha_t")):
+            value = float(getattr(self, alpha))
+            if not np.isfinite(value) or value < 0.0:
+                raise ValueError(f"FluidInterface: {alpha} must be finite and >= 0 "
+                                 f"(a negative Robin coefficient makes the operator indefinite), got {value}")
+            if getattr(self, part) == "dirichlet" and value != 0.0:
+                raise ValueError(f"FluidInterface: {alpha}={value} is only used with {part}='robin', "
+                                 f"not with {part}='dirichlet'")
+            setattr(self, alpha, value)
+
+    @property
+    def inputs(self) -> dict[str, int]:
+        """Input arrays this interface takes (name -> number of components)."""
+        out = {}
+        if "dirichlet" in (self.normal, self.tangential):
+            out["velocity"] = 2
+        if self.normal == "robin":
+            out["robin_normal"] = 2
+        if self.tangential == "robin":
+            out["robin_tangential"] = 2
+        return out
+
+
+def _as_tags(tags) -> list[int]:
+    return [int(tags)] if np.isscalar(tags) else [int(t) for t in tags]
+
+
+class _Interface:
+    """Internal state of one interface: data functions, bcs, traction recovery."""
+
+    def __init__(self, name: str, spec: FluidInterface, marker: int):
+        self.name, self.spec, self.marker = name, spec, marker
+        self.nodes: InterfaceNodes | None = None
+        self.g_velocity: fem.Function | None = None       # full Dirichlet data (P2 vector)
+        self.g_component: fem.Function | None = None      # single-part Dirichlet data (P2 scalar)
+        self.component_nodes: InterfaceNodes | None = None
+        self.component: int | None = None                 # Cartesian component of a single Dirichlet part
+        self.g_normal: fem.Function | None = None
+        self.g_tangential: fem.Function | None = None
+        self.alpha_n: fem.Constant | None = None
+        self.alpha_t: fem.Constant | None = None
+        self.traction: fem.Function | None = None
+        self.traction_solver: LinearSolver | None = None
+        self.force_form = None
+        self.traction_current = False
+        self.own_constrained = [np.empty(0, np.int32), np.empty(0, np.int32)]   # V dofs fixed by its own Dirichlet part
+
+
+class StokesSolver(FieldSolver):
+    """Steady Stokes flow on its own mesh; interface data in and out as arrays.
+
+    Taylor–Hood P2/P1.  The operator is linear and does not depend on the
+    interface data, so it is assembled and factorised once (MUMPS LU);
+    ``solve()`` re-assembles only the right-hand side.  The same holds for
+    the interface mass matrices used to recover the consistent traction.
+
+    Args:
+        mesh: the fluid mesh (2D; P1 or P2 geometry).
+        facet_tags: facet tags of ``mesh``.
+        viscosity: mu in the chosen stress unit (``Ca`` in units of mu_s, 1 in
+            units of mu V0 / L0).
+        velocity_bcs: ``[(tags, value)]``, full-vector Dirichlet conditions.
+            ``value`` is a constant ``(vx, vy)`` or a callable
+            ``x -> (2, npts)`` array (as ``Function.interpolate``).
+        component_bcs: ``[(tags, component, value)]``, one Cartesian
+            component fixed (``value`` a float or ``x -> (npts,)``); the other
+            component is traction-free.
+        interfaces: ``{name: FluidInterface}``.
+        body_force: optional f: a UFL expression, a constant ``(fx, fy)`` or
+            a callable ``x -> (2, npts)`` (interpolated into P2).
+        name: solver name (PETSc prefixes, messages).
+        quadrature_degree: quadrature degree of every cell and facet integral
+            (the monolithic reference must use the same).
+        petsc_options: extra PETSc options of the Stokes solve.
+        pressure_pin: optional point ``(x, y)``: P = 0 at the pressure node
+            nearest to it.  Required when the normal velocity is prescribed
+            on the whole boundary (P is then defined only up to a constant;
+            the constructor raises without it).
+
+    Where boundaries share a node, the Dirichlet conditions are applied in
+    the order interfaces, ``component_bcs``, ``velocity_bcs``: the outer
+    boundary conditions win at the ends of an interface.
+
+    Interface inputs (each ``(N, 2)`` on ``interface_points(name)``; unset
+    inputs are zero): ``"velocity"`` g_V (if a part is Dirichlet),
+    ``"robin_normal"`` g_N (only g_N.n is used), ``"robin_tangential"`` g_T
+    (only its tangential part is used).
+
+    Interface outputs: ``"velocity"`` (N, 2) nodal V and ``"traction"`` (N, 2)
+    nodal consistent traction lambda ON the fluid (see the module docstring).
+
+    Example::
+
+        solver = StokesSolver(msh, ft, viscosity=1.0,
+                              velocity_bcs=[(INLET, inflow), (WALL, (0, 0))],
+                              interfaces={"Gamma1": FluidInterface(GAMMA1, alpha_n=1.0)})
+        solver.set_interface_data("Gamma1", robin_normal=g)
+        solver.solve()
+        out = solver.interface_data("Gamma1")    # {"velocity": ..., "traction": ...}
+    """
+
+    def __init__(self, mesh: dmesh.Mesh, facet_tags: dmesh.MeshTagsMetaClass, *,
+                 viscosity: float,
+                 velocity_bcs: typing.Sequence = (),
+                 component_bcs: typing.Sequence = (),
+                 interfaces: typing.Mapping[str, FluidInterface] | None = None,
+                 body_force=None,
+                 name: str = "fluid",
+                 quadrature_degree: int = 4,
+                 petsc_options: dict | None = None,
+                 pressure_pin: typing.Sequence[float] | None = None):
+        super().__init__()
+        t0 = time.perf_counter()
+        self.name = name
+        viscosity = float(viscosity)
+        if not np.isfinite(viscosity) or viscosity <= 0:
+            raise ValueError(f"{name}: viscosity must be finite and > 0, got {viscosity}")
+        if mesh.geometry.dim != 2 or mesh.topology.dim != 2:
+            raise ValueError(f"{name}: mesh must be 2D (gdim = tdim = 2), got gdim={mesh.geometry.dim}")
+        if int(quadrature_degree) < 1:
+            raise ValueError(f"{name}: quadrature_degree must be >= 1, got {quadrature_degree}")
+        interfaces = dict(interfaces or {})
+        for key, spec in interfaces.items():
+            if not isinstance(spec, FluidInterface):
+                raise TypeError(f"{name}: interfaces[{key!r}] must be a FluidInterface, got {type(spec).__name__}")
+        self.mesh, self.facet_tags = mesh, facet_tags
+        self.quadrature_degree = int(quadrature_degree)
+        self.comm: MPI.Comm = mesh.comm
+        self._fdim = mesh.topology.dim - 1
+        mesh.topology.create_connectivity(self._fdim, mesh.topology.dim)
+
+        # -- spaces -------------------------------------------------------------
+        P2 = ufl.VectorElement("Lagrange", mesh.ufl_cell(), 2)
+        P1 = ufl.FiniteElement("Lagrange", mesh.ufl_cell(), 1)
+        self.W = fem.FunctionSpace(mesh, ufl.MixedElement([P2, P1]))
+        self.V, V_to_W = self.W.sub(0).collapse()
+        self.Q, Q_to_W = self.W.sub(1).collapse()
+        self._V_to_W = np.asarray(V_to_W, dtype=np.int32)
+        self._Q_to_W = np.asarray(Q_to_W, dtype=np.int32)
+        self._Vc = [self.W.sub(0).sub(c).collapse() for c in range(2)]    # (space, map to W)
+        self.w = fem.Function(self.W, name="w")
+        self._u = fem.Function(self.V, name="V")
+        self._p = fem.Function(self.Q, name="P")
+        self.mu = fem.Constant(mesh, PETSc.ScalarType(viscosity))
+        self.dx = quadrature_measure("dx", mesh, degree=self.quadrature_degree)
+
+        # -- tags ----------------------------------------------------------------
+        velocity_bcs = [(_as_tags(tags), value) for tags, value in velocity_bcs]
+        component_bcs = [(_as_tags(tags), int(c), value) for tags, c, value in component_bcs]
+        for tags, c, _ in component_bcs:
+            if c not in (0, 1):
+                raise ValueError(f"{name}: component_bcs component must be 0 (x) or 1 (y), got {c} for tags {tags}")
+        self._check_tags(velocity_bcs, component_bcs, interfaces)
+
+        # -- interfaces: data, Robin terms, Dirichlet parts ----------------------
+        self._ifaces: dict[str, _Interface] = {}
+        marker_facets, marker_values = [], []
+        for k, (iname, spec) in enumerate(interfaces.items()):
+            it = _Interface(iname, spec, marker=k + 1)
+            it.nodes = InterfaceNodes(self.V, facet_tags, spec.tags, parent_dofs=self._V_to_W)
+            facets = self._facets(spec.tags)
+            marker_facets.append(facets)
+            marker_values.append(np.full(facets.size, it.marker, dtype=np.int32))
+            self._ifaces[iname] = it
+            self._add_interface(iname, it.nodes, spec.inputs)
+        if marker_facets:
+            f = np.hstack(marker_facets)
+            order = np.argsort(f)
+            self._iface_tags = dmesh.meshtags(mesh, self._fdim, f[order], np.hstack(marker_values)[order])
+        else:
+            self._iface_tags = dmesh.meshtags(mesh, self._fdim, np.empty(0, np.int32), np.empty(0, np.int32))
+        self.ds = quadrature_measure("ds", mesh, self._iface_tags, degree=self.quadrature_degree)
+
+        # -- body force ----------------------------------------------------------
+        self.body_force = self._body_force(body_force)
+
+        # -- Stokes forms ---------------------------------------------------------
+        u, p = ufl.TrialFunctions(self.W)
+        v, q = ufl.TestFunctions(self.W)
+        n = ufl.FacetNormal(mesh)
+        F = forms.bulk_residual(u, p, v, q, self.mu, self.dx, self.body_force)
+        for it in self._ifaces.values():
+            F += self._robin_terms(it, u, v, n)
+        a, L = ufl.lhs(F), ufl.rhs(F)
+        # keep L a non-empty form when there is neither a body force nor Robin data
+        zero = fem.Constant(mesh, PETSc.ScalarType((0.0, 0.0)))
+        L = L + ufl.inner(zero, v) * self.dx
+
+        # -- Dirichlet conditions (interfaces first: outer boundaries win) ---------
+        self._constrained = [np.empty(0, np.int32), np.empty(0, np.int32)]   # V dofs per component
+        bcs = []
+        for it in self._ifaces.values():
+            bcs += self._interface_bcs(it)
+        for tags, c, value in component_bcs:
+            bcs.append(self._component_bc(tags, c, value))
+        for tags, value in velocity_bcs:
+            bcs.append(self._velocity_bc(tags, value))
+        self._velocity_bcs, self._component_bcs = velocity_bcs, component_bcs
+        if pressure_pin is not None:
+            bcs.append(self._pressure_pin(pressure_pin))
+        else:
+            self._check_pressure_determined()
+        self.bcs = bcs
+        self._solver = LinearSolver(a, L, self.w, bcs, name=name, petsc_options=petsc_options)
+
+        # -- consistent traction: interface mass matrices -------------------------
+        self._setup_traction_recovery()
+        self._solved = False
+        self.timing["setup"] += time.perf_counter() - t0
+
+    # =========================================================================
+    # setup helpers
+    # =========================================================================
+    def _facets(self, tags: typing.Sequence[int]) -> np.ndarray:
+        """Local facets carrying any of ``tags`` (sorted, unique)."""
+        found = [self.facet_tags.find(int(t)) for t in tags]
+        return np.unique(np.hstack(found).astype(np.int32)) if found else np.empty(0, np.int32)
+
+    def _check_tags(self, velocity_bcs, component_bcs, interfaces) -> None:
+        """Every tag exists somewhere; interface tags are used by nothing else."""
+        used: dict[int, str] = {}
+        for key, spec in interfaces.items():
+            for t in spec.tags:
+                if t in used:
+                    raise ValueError(f"{self.name}: facet tag {t} is used by interface {key!r} and by {used[t]}")
+                used[t] = f"interface {key!r}"
+        every = [(t, "velocity_bcs") for tags, _ in velocity_bcs for t in tags]
+        every += [(t, "component_bcs") for tags, _, _ in component_bcs for t in tags]
+        for t, what in every:
+            if t in used:
+                raise ValueError(f"{self.name}: facet tag {t} is used by {what} and by {used[t]}")
+        for t, what in every + [(t, "interfaces") for s in interfaces.values() for t in s.tags]:
+            count = self.comm.allreduce(int(self.facet_tags.find(t).size), op=MPI.SUM)
+            if count == 0:
+                present = self.comm.allreduce([int(v) for v in np.unique(self.facet_tags.values)])
+                raise ValueError(f"{self.name}: {what} names facet tag {t}, but no facet of the mesh has it; "
+                                 f"tags present: {sorted(set(present))}")
+
+    def _body_force(self, body_force):
+        if body_force is None:
+            return None
+        if callable(body_force) and not isinstance(body_force, ufl.core.expr.Expr):
+            f = fem.Function(self.V, name="f")
+            f.interpolate(body_force)
+            f.x.scatter_forward()
+            return f
+        if isinstance(body_force, ufl.core.expr.Expr):
+            if body_force.ufl_shape != (2,):
+                raise ValueError(f"{self.name}: body_force must be a 2-vector, got shape {body_force.ufl_shape}")
+            return body_force
+        value = np.asarray(body_force, dtype=float)
+        if value.shape != (2,):
+            raise ValueError(f"{self.name}: body_force must be a UFL 2-vector, a callable or (fx, fy), "
+                             f"got {body_force!r}")
+        return fem.Constant(self.mesh, PETSc.ScalarType(tuple(value)))
+
+    def _robin_terms(self, it: _Interface, u, v, n):
+        """Robin (and traction) terms of one interface; Dirichlet parts contribute none."""
+        spec = it.spec
+        if spec.normal == "dirichlet" and spec.tangential == "dirichlet":
+            return 0
+        zero = ufl.as_vector((0.0, 0.0))
+        if spec.normal == "robin":
+            it.alpha_n = fem.Constant(self.mesh, PETSc.ScalarType(spec.alpha_n))
+            it.g_normal = fem.Function(self.V, name=f"{it.name}_robin_normal")
+        if spec.tangential == "robin":
+            it.alpha_t = fem.Constant(self.mesh, PETSc.ScalarType(spec.alpha_t))
+            it.g_tangential = fem.Function(self.V, name=f"{it.name}_robin_tangential")
+        return forms.robin_residual(
+            u, v, n,
+            it.alpha_n if it.alpha_n is not None else 0,
+            it.alpha_t if it.alpha_t is not None else 0,
+            it.g_normal if it.g_normal is not None else zero,
+            it.g_tangential if it.g_tangential is not None else zero,
+            self.ds(it.marker))
+
+    def _mark_constrained(self, V_dofs: np.ndarray, component: int) -> None:
+        self._constrained[component] = np.union1d(self._constrained[component],
+                                                  np.asarray(V_dofs, dtype=np.int32))
+
+    def _locate(self, tags) -> np.ndarray:
+        return fem.locate_dofs_topological(self.V, self._fdim, self._facets(tags))   # V blocks
+
+    def _velocity_bc(self, tags, value) -> fem.DirichletBCMetaClass:
+        g = fem.Function(self.V)
+        if callable(value):
+            g.interpolate(value)
+        else:
+            value = np.asarray(value, dtype=float)
+            if value.shape != (2,):
+                raise ValueError(f"{self.name}: velocity_bcs value for tags {tags} must be (vx, vy) "
+                                 f"or a callable, got {value!r}")
+            g.x.array.reshape(-1, 2)[:] = value
+        g.x.scatter_forward()
+        dofs = fem.locate_dofs_topological((self.W.sub(0), self.V), self._fdim, self._facets(tags))
+        blocks = self._locate(tags)
+        for c in range(2):
+            self._mark_constrained(2 * blocks + c, c)
+        return fem.dirichletbc(g, dofs, self.W.sub(0))
+
+    def _component_bc(self, tags, c, value) -> fem.DirichletBCMetaClass:
+        Vc = self._Vc[c][0]
+        g = fem.Function(Vc)
+        if callable(value):
+            g.interpolate(lambda x: np.asarray(value(x), dtype=float).reshape(-1))
+        else:
+            try:
+                g.x.array[:] = float(value)
+            except (TypeError, ValueError):
+                raise ValueError(f"{self.name}: component_bcs value for tags {tags} must be a float "
+                                 f"or a callable, got {value!r}") from None
+        g.x.scatter_forward()
+        dofs = fem.locate_dofs_topological((self.W.sub(0).sub(c), Vc), self._fdim, self._facets(tags))
+        self._mark_constrained(2 * self._locate(tags) + c, c)
+        return fem.dirichletbc(g, dofs, self.W.sub(0).sub(c))
+
+    def _interface_bcs(self, it: _Interface) -> list:
+        spec = it.spec
+        parts = [spec.normal == "dirichlet", spec.tangential == "dirichlet"]
+        if not any(parts):
+            return []
+        if all(parts):
+            it.g_velocity = fem.Function(self.V, name=f"{it.name}_velocity")
+            dofs = fem.locate_dofs_topological((self.W.sub(0), self.V), self._fdim, self._facets(spec.tags))
+            blocks = self._locate(spec.tags)
+            it.own_constrained = [2 * blocks, 2 * blocks + 1]
+            return [fem.dirichletbc(it.g_velocity, dofs, self.W.sub(0))]
+        normal_axis = self._normal_axis(it)
+        it.component = normal_axis if parts[0] else 1 - normal_axis
+        Vc = self._Vc[it.component][0]
+        it.g_component = fem.Function(Vc, name=f"{it.name}_velocity_{it.component}")
+        it.component_nodes = InterfaceNodes(Vc, self.facet_tags, spec.tags)
+        if not np.array_equal(it.component_nodes.points, it.nodes.points):
+            raise RuntimeError(f"{self.name}: interface {it.name!r}: scalar and vector P2 nodes differ")
+        dofs = fem.locate_dofs_topological((self.W.sub(0).sub(it.component), Vc), self._fdim,
+                                           self._facets(spec.tags))
+        it.own_constrained[it.component] = 2 * self._locate(spec.tags) + it.component
+        return [fem.dirichletbc(it.g_component, dofs, self.W.sub(0).sub(it.component))]
+
+    def _normal_axis(self, it: _Interface) -> int:
+        """0 if the interface is a line x = const, 1 if y = const; otherwise raise."""
+        pts = it.nodes.points
+        scale = 1.0 + np.abs(pts).max()
+        spread = pts.max(axis=0) - pts.min(axis=0)
+        straight = spread <= 1e-10 * scale
+        if straight[0] == straight[1]:
+            raise ValueError(
+                f"{self.name}: interface {it.name!r} has normal={it.spec.normal!r} and "
+                f"tangential={it.spec.tangential!r}; a single Dirichlet part is only allowed on a straight, "
+                f"axis-aligned interface (x = const or y = const), but its nodes span "
+                f"dx={spread[0]:.3g}, dy={spread[1]:.3g}. Use 'dirichlet' for both parts or 'robin'.")
+        return 0 if straight[0] else 1
+
+    def _pressure_pin(self, point) -> fem.DirichletBCMetaClass:
+        point = np.asarray(point, dtype=float).reshape(-1)
+        if point.shape != (2,) or not np.all(np.isfinite(point)):
+            raise ValueError(f"{self.name}: pressure_pin must be a point (x, y), got {point!r}")
+        X = self.Q.tabulate_dof_coordinates()[:, :2]
+        n_owned = self.Q.dofmap.index_map.size_local
+        d = np.linalg.norm(X[:n_owned] - point, axis=1)
+        local = (float(d.min()), self.comm.rank) if d.size else (np.inf, self.comm.rank)
+        _, owner = self.comm.allreduce(local, op=MPI.MINLOC)
+        node = self.comm.bcast(X[int(np.argmin(d))] if self.comm.rank == owner else None, root=owner)
+        tol = 1e-12 * (1 + np.abs(node).max())
+        dofs = fem.locate_dofs_geometrical((self.W.sub(1), self.Q),
+                                           lambda x: np.linalg.norm(x[:2].T - node, axis=1) < tol)
+        return fem.dirichletbc(fem.Function(self.Q), dofs, self.W.sub(1))
+
+    def _check_pressure_determined(self) -> None:
+        """Raise if V.n is prescribed on the whole boundary (P then only up to a constant)."""
+        msh, fdim = self.mesh, self._fdim
+        ext = dmesh.exterior_facet_indices(msh.topology)
+        free = np.ones(ext.size, dtype=bool)
+        full = [t for tags, _ in self._velocity_bcs for t in tags]
+        full += [t for it in self._ifaces.values() if it.spec.normal == "dirichlet" for t in it.spec.tags]
+        free &= ~np.isin(ext, self._facets(full))
+        geo = _cpp.mesh.entities_to_geometry(msh._mesh, fdim, ext, False)
+        x = msh.geometry.x
+        d = np.abs(x[geo[:, 1], :2] - x[geo[:, 0], :2]) if ext.size else np.zeros((0, 2))
+        for tags, c, _ in self._component_bcs:
+            # component c is the normal one on a facet along the other axis
+            along = d[:, c] <= 1e-12 * (d.sum(axis=1) + 1e-300)
+            free &= ~(np.isin(ext, self._facets(tags)) & along)
+        # facets of ghost cells appear on two ranks; any free facet anywhere is enough
+        if self.comm.allreduce(int(free.sum()), op=MPI.SUM) == 0:
+            raise ValueError(f"{self.name}: the normal velocity is prescribed on the whole boundary, so the "
+                             f"pressure is determined only up to a constant; pass pressure_pin=(x, y)")
+
+    def _setup_traction_recovery(self) -> None:
+        """Interface mass matrices: int lambda.s ds_Gamma, all non-interface rows pinned."""
+        V = self.V
+        lam, s = ufl.TrialFunction(V), ufl.TestFunction(V)
+        u_h, p_h = ufl.split(self.w)
+        # R(s): bulk residual with q = 0, i.e. the reaction without interface terms
+        self._reaction_form = forms.bulk_residual(u_h, p_h, s, 0, self.mu, self.dx, self.body_force)
+        n_local = (V.dofmap.index_map.size_local + V.dofmap.index_map.num_ghosts) * 2
+        self._direction = fem.Constant(self.mesh, PETSc.ScalarType((1.0, 0.0)))
+        for it in self._ifaces.values():
+            ft = self._single_marker(it)
+            ds = quadrature_measure("ds", self.mesh, ft, degree=self.quadrature_degree)
+            zero = fem.Constant(self.mesh, PETSc.ScalarType(0.0))
+            # Constant(0)*dx keeps a diagonal entry for every (pinned) off-interface row
+            a = ufl.inner(lam, s) * ds(1) + zero * ufl.inner(lam, s) * self.dx
+            it.traction = fem.Function(V, name=f"{it.name}_traction")
+            on = it.nodes.dofs()              # local (n, 2) unrolled V dofs on the interface
+            bcs = []
+            for c in range(2):
+                # fixed by another boundary: outer Dirichlet conditions and the other interfaces'
+                other = [self._constrained[c]] + [o.own_constrained[c] for o in self._ifaces.values() if o is not it]
+                keep = np.setdiff1d(on[:, c], np.hstack(other))
+                pinned = np.setdiff1d(np.arange(c, n_local, 2, dtype=np.int32), keep).astype(np.int32)
+                bcs.append(fem.dirichletbc(PETSc.ScalarType(0.0), pinned, V.sub(c)))
+            it.traction_solver = LinearSolver(a, self._reaction_form, it.traction, bcs,
+                                              name=f"{self.name}_{it.name}_traction")
+            it.force_form = fem.form(ufl.inner(it.traction, self._direction) * ds(1))
+
+    def _single_marker(self, it: _Interface):
+        """Facet tags with value 1 on this interface only (one compiled form for all interfaces)."""
+        f = self._facets(it.spec.tags)
+        return dmesh.meshtags(self.mesh, self._fdim, f, np.ones(f.size, dtype=np.int32))
+
+    # =========================================================================
+    # FieldSolver interface
+    # =========================================================================
+    def _set_input(self, interface: str, key: str, values: np.ndarray) -> None:
+        it = self._ifaces[interface]
+        if key == "velocity":
+            if it.g_velocity is not None:
+                it.nodes.to_function(values, it.g_velocity)
+            else:
+                it.component_nodes.to_function(values[:, it.component], it.g_component)
+        elif key == "robin_normal":
+            it.nodes.to_function(values, it.g_normal)
+        elif key == "robin_tangential":
+            it.nodes.to_function(values, it.g_tangential)
+        else:      # FieldSolver.set_interface_data has checked the key
+            raise KeyError(key)
+
+    def _solve(self) -> None:
+        self._solver.solve()
+        self._u.x.array[:] = self.w.x.array[self._V_to_W]
+        self._p.x.array[:] = self.w.x.array[self._Q_to_W]
+        for it in self._ifaces.values():
+            it.traction_current = False
+        self._solved = True
+
+    def _require_solution(self) -> None:
+        if not self._solved:
+            raise RuntimeError(f"{self.name}: call solve() before asking for results")
+
+    def _traction(self, it: _Interface) -> fem.Function:
+        self._require_solution()
+        if not it.traction_current:
+            it.traction_solver.solve()
+            it.traction_current = True
+        return it.traction
+
+    def interface_data(self, name: str) -> dict[str, np.ndarray]:
+        """``{"velocity": (N, 2), "traction": (N, 2)}`` on ``interface_points(name)``.
+
+        ``traction`` is the consistent traction lambda exerted ON the fluid
+        (t = (Sigma - P I) n, n the fluid's outward normal); components fixed
+        by another boundary's Dirichlet condition are 0.
+        """
+        nodes = self.interface_nodes(name)
+        self._require_solution()
+        it = self._ifaces[name]
+        return {"velocity": nodes.from_function(self._u),
+                "traction": nodes.from_function(self._traction(it))}
+
+    # =========================================================================
+    # accessors
+    # =========================================================================
+    @property
+    def velocity(self) -> fem.Function:
+        """The velocity V (collapsed P2 vector function); valid after ``solve()``."""
+        return self._u
+
+    @property
+    def pressure(self) -> fem.Function:
+        """The pressure P (collapsed P1 function); valid after ``solve()``."""
+        return self._p
+
+    def traction_function(self, name: str) -> fem.Function:
+        """The consistent traction lambda of interface ``name`` as a P2 function (zero off it)."""
+        self.interface_nodes(name)
+        return self._traction(self._ifaces[name])
+
+    def interface_force(self, name: str) -> np.ndarray:
+        """Total force ON the fluid over interface ``name``: int_Gamma lambda ds, shape (2,)."""
+        self.interface_nodes(name)
+        it = self._ifaces[name]
+        self._traction(it)
+        force = np.zeros(2)
+        for c in range(2):
+            self._direction.value[:] = (1.0, 0.0) if c == 0 else (0.0, 1.0)
+            force[c] = self.comm.allreduce(fem.assemble_scalar(it.force_form), op=MPI.SUM)
+        return force
+
+    def update_operator(self) -> None:
+        """Re-assemble and re-factorise the Stokes operator (e.g. after changing ``mu.value``)."""
+        self._solver.update_operator()
+
+    def set_robin_coefficients(self, name: str, alpha_n: float | None = None,
+                               alpha_t: float | None = None) -> None:
+        """Change the Robin coefficients of interface ``name``; re-factorises the operator.
+
+        Only parts declared ``"robin"`` have a coefficient.  Each value must be
+        finite and >= 0.
+        """
+        self.interface_nodes(name)
+        it = self._ifaces[name]
+        for part, key, value, const in (("normal", "alpha_n", alpha_n, it.alpha_n),
+                                        ("tangential", "alpha_t", alpha_t, it.alpha_t)):
+            if value is None:
+                continue
+            value = float(value)
+            if const is None:
+                raise ValueError(f"{self.name}: interface {name!r} has {part}={getattr(it.spec, part)!r}; "
+                                 f"{key} exists only for {part}='robin'")
+            if not np.isfinite(value) or value < 0.0:
+                raise ValueError(f"{self.name}: {key} must be finite and >= 0, got {value}")
+            const.value = value
+            setattr(it.spec, key, value)
+        self._solver.update_operator()
+
+    @property
+    def stats(self) -> dict:
+        """Factorisations, solves and times: totals, and per part (``stokes``, ``traction``)."""
+        traction = SolverStats()
+        for it in self._ifaces.values():
+            for k, v in it.traction_solver.stats.items():
+                traction[k] += v
+        stokes = dict(self._solver.stats)
+        total = {k: stokes[k] + traction[k] for k in stokes}
+        total.update(stokes=stokes, traction=dict(traction), timing=dict(self.timing))
+        return total
