@@ -11,8 +11,8 @@ for good.  Both report what they did in ``stats``.
 from __future__ import annotations
 
 import itertools
+import re
 import time
-import typing
 
 import numpy as np
 
@@ -23,9 +23,15 @@ import ufl
 from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
 
-__all__ = ["LinearSolver", "NewtonSolver", "SolverStats", "direct_solver"]
+__all__ = ["DirectSolver", "LinearSolver", "NewtonSolver", "SolverStats", "direct_solver",
+           "assemble_residual_vector", "global_norm"]
 
 _counter = itertools.count()
+_ICNTL = re.compile(r"^mat_mumps_icntl_(\d+)$")
+
+#: MUMPS controls applied to every factorisation: more workspace slack (14) and
+#: null-pivot detection (24) keep the saddle-point factorisations robust
+DEFAULT_ICNTL = {14: 100, 24: 1}
 
 
 class SolverStats(dict):
@@ -33,34 +39,71 @@ class SolverStats(dict):
 
     def __init__(self):
         super().__init__(factorizations=0, solves=0, factor_time=0.0, solve_time=0.0,
-                         assemble_time=0.0, newton_iterations=0)
+                         assemble_time=0.0, newton_iterations=0, rejected_steps=0)
 
 
-def direct_solver(comm: MPI.Comm, A: PETSc.Mat, name: str,
-                  petsc_options: dict | None = None) -> PETSc.KSP:
-    """A KSP doing LU with MUMPS (options overridable) under a unique prefix."""
-    ksp = PETSc.KSP().create(comm)
-    prefix = f"gelcell_{name}_{next(_counter)}_"
-    ksp.setOptionsPrefix(prefix)
-    options = {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps",
-               # MUMPS: keep pivoting robust for the saddle-point blocks
-               "mat_mumps_icntl_14": 100, "mat_mumps_icntl_24": 1}
-    options.update(petsc_options or {})
-    opts = PETSc.Options()
-    opts.prefixPush(prefix)
-    for k, v in options.items():
-        opts[k] = v
-    opts.prefixPop()
-    ksp.setOperators(A)
-    ksp.setFromOptions()
-    A.setOptionsPrefix(prefix)
-    return ksp
+class DirectSolver:
+    """LU factorisation (MUMPS by default) of one operator, reused for many right-hand sides.
+
+    Options are set through the API, not the global PETSc options database,
+    whose 512 entries a long test session would otherwise fill:
+    ``mat_mumps_icntl_N`` entries of ``options`` become MUMPS controls,
+    ``pc_factor_mat_solver_type`` selects the factorisation package, and any
+    other entry goes to the options database under a unique prefix.
+    """
+
+    def __init__(self, comm: MPI.Comm, name: str, options: dict | None = None):
+        self.name = name
+        self.ksp = PETSc.KSP().create(comm)
+        self.ksp.setType("preonly")
+        pc = self.ksp.getPC()
+        pc.setType("lu")
+        options = dict(options or {})
+        pc.setFactorSolverType(options.pop("pc_factor_mat_solver_type", "mumps"))
+        options.pop("ksp_type", None)
+        options.pop("pc_type", None)
+        self.icntl = dict(DEFAULT_ICNTL)
+        for key in list(options):
+            m = _ICNTL.match(key)
+            if m:
+                self.icntl[int(m.group(1))] = int(options.pop(key))
+        if options:
+            prefix = f"gelcell_{name}_{next(_counter)}_"
+            self.ksp.setOptionsPrefix(prefix)
+            opts = PETSc.Options()
+            for k, v in options.items():
+                opts[prefix + k] = v
+            self.ksp.setFromOptions()
+
+    def set_operator(self, A: PETSc.Mat, reset: bool = False) -> None:
+        """Use ``A``; ``reset`` drops an earlier factorisation of a matrix of another size."""
+        if reset:
+            self.ksp.reset()
+        self.ksp.setOperators(A)
+
+    def factorize(self) -> None:
+        """(Re)factorise the current operator."""
+        pc = self.ksp.getPC()
+        pc.setFactorSetUpSolverType()
+        if pc.getFactorSolverType() == "mumps":
+            F = pc.getFactorMatrix()
+            for k, v in self.icntl.items():
+                F.setMumpsIcntl(k, v)
+        self.ksp.setUp()
+
+    def solve(self, b: PETSc.Vec, x: PETSc.Vec) -> None:
+        self.ksp.solve(b, x)
+        reason = self.ksp.getConvergedReason()
+        if reason <= 0:
+            raise RuntimeError(f"{self.name}: linear solve failed (PETSc KSP reason {reason})")
 
 
-def _check(ksp: PETSc.KSP, what: str) -> None:
-    reason = ksp.getConvergedReason()
-    if reason <= 0:
-        raise RuntimeError(f"{what}: linear solve failed (PETSc KSP reason {reason})")
+def direct_solver(comm: MPI.Comm, A: PETSc.Mat, name: str, petsc_options: dict | None = None) -> DirectSolver:
+    """A factorised :class:`DirectSolver` for ``A``."""
+    solver = DirectSolver(comm, name, petsc_options)
+    solver.set_operator(A)
+    solver.factorize()
+    return solver
 
 
 def _nan_check(vec: PETSc.Vec, what: str) -> None:
@@ -86,19 +129,20 @@ class LinearSolver:
         comm = u.function_space.mesh.comm
         self.A = fem_petsc.create_matrix(self.a)
         self.b = fem_petsc.create_vector(self.L)
-        self.ksp = direct_solver(comm, self.A, name, petsc_options)
+        self.solver = DirectSolver(comm, name, petsc_options)
+        self.ksp = self.solver.ksp
         self._operator_ready = False
 
     def update_operator(self) -> None:
-        """Re-assemble the matrix; the next solve factorises it again."""
+        """Re-assemble the matrix and factorise it."""
         t0 = time.perf_counter()
         self.A.zeroEntries()
         fem_petsc.assemble_matrix(self.A, self.a, bcs=self.bcs)
         self.A.assemble()
-        self.ksp.setOperators(self.A)
+        self.solver.set_operator(self.A)
         self.stats["assemble_time"] += time.perf_counter() - t0
         t0 = time.perf_counter()
-        self.ksp.setUp()
+        self.solver.factorize()
         self.stats["factor_time"] += time.perf_counter() - t0
         self.stats["factorizations"] += 1
         self._operator_ready = True
@@ -120,10 +164,9 @@ class LinearSolver:
         self.assemble_rhs()
         self.stats["assemble_time"] += time.perf_counter() - t0
         t0 = time.perf_counter()
-        self.ksp.solve(self.b, self.u.vector)
+        self.solver.solve(self.b, self.u.vector)
         self.stats["solve_time"] += time.perf_counter() - t0
         self.stats["solves"] += 1
-        _check(self.ksp, self.name)
         _nan_check(self.u.vector, self.name)
         self.u.x.scatter_forward()
         return self.u
@@ -139,15 +182,22 @@ class NewtonSolver:
       * ``"never"``: full Newton, a new factorisation every iteration;
       * ``"adaptive"`` (default): keep the factorised Jacobian, also across
         calls to ``solve()``, for as long as every correction is at most
-        ``contraction`` times the previous one; otherwise refactorise at the
-        current state.  At small strains the first factorisation is kept for
-        the whole coupling loop.
+        ``contraction`` times the previous one.  A step with a kept (stale)
+        Jacobian that fails this test is undone and retaken with a Jacobian
+        at the current iterate: a stale first step of a strongly nonlinear
+        solve could otherwise leave Newton's basin.  At small strains the
+        first factorisation serves the whole coupling loop.
+
+    ``active_dofs`` (local dof indices) restricts the linear solves to those
+    dofs: the others have no equation (e.g. a field outside its subdomain in
+    the monolithic system) and keep their value.
     """
 
     def __init__(self, F: ufl.Form, u: fem.Function, bcs: list, J: ufl.Form | None = None,
                  name: str = "newton", rtol: float = 1e-11, max_it: int = 30,
                  reuse: str = "adaptive", contraction: float = 0.1,
-                 petsc_options: dict | None = None, form_compiler_params: dict | None = None):
+                 petsc_options: dict | None = None, form_compiler_params: dict | None = None,
+                 active_dofs: np.ndarray | None = None):
         if reuse not in ("never", "adaptive"):
             raise ValueError(f"reuse must be 'never' or 'adaptive', got {reuse!r}")
         fcp = form_compiler_params or {}
@@ -163,7 +213,27 @@ class NewtonSolver:
         self.A = fem_petsc.create_matrix(self.J)
         self.b = fem_petsc.create_vector(self.F)
         self.du = self.A.createVecRight()
-        self.ksp = direct_solver(comm, self.A, name, petsc_options)
+        self._active = None
+        self._A_active = None
+        if active_dofs is not None:
+            imap, bs = u.function_space.dofmap.index_map, u.function_space.dofmap.index_map_bs
+            owned = np.asarray(active_dofs, dtype=np.int64)
+            owned = owned[owned < imap.size_local * bs]
+            self._active = PETSc.IS().createGeneral((owned + imap.local_range[0] * bs).astype(PETSc.IntType),
+                                                    comm=comm)
+        self.solver = DirectSolver(comm, name, petsc_options)
+        self.ksp = self.solver.ksp
+        self._have_jacobian = False
+
+    @property
+    def num_active_dofs(self) -> int:
+        """Global number of dofs the linear solves act on."""
+        if self._active is None:
+            return self.A.getSize()[0]
+        return self.u.function_space.mesh.comm.allreduce(self._active.getLocalSize(), op=MPI.SUM)
+
+    def invalidate_jacobian(self) -> None:
+        """Factorise again at the next iteration (e.g. coefficients of J changed)."""
         self._have_jacobian = False
 
     def _assemble_jacobian(self) -> None:
@@ -171,10 +241,15 @@ class NewtonSolver:
         self.A.zeroEntries()
         fem_petsc.assemble_matrix(self.A, self.J, bcs=self.bcs)
         self.A.assemble()
-        self.ksp.setOperators(self.A)
+        if self._active is not None:
+            first = self._A_active is None
+            self._A_active = self.A.createSubMatrix(self._active, self._active, submat=self._A_active)
+            self.solver.set_operator(self._A_active, reset=first)
+        else:
+            self.solver.set_operator(self.A)
         self.stats["assemble_time"] += time.perf_counter() - t0
         t0 = time.perf_counter()
-        self.ksp.setUp()
+        self.solver.factorize()
         self.stats["factor_time"] += time.perf_counter() - t0
         self.stats["factorizations"] += 1
         self._have_jacobian = True
@@ -189,6 +264,16 @@ class NewtonSolver:
         fem_petsc.set_bc(self.b, self.bcs, self.u.vector, -1.0)
         return self.b
 
+    def _linear_solve(self) -> None:
+        if self._active is None:
+            self.solver.solve(self.b, self.du)
+            return
+        self.du.zeroEntries()
+        b_sub, du_sub = self.b.getSubVector(self._active), self.du.getSubVector(self._active)
+        self.solver.solve(b_sub, du_sub)
+        self.b.restoreSubVector(self._active, b_sub)
+        self.du.restoreSubVector(self._active, du_sub)
+
     def solve(self) -> int:
         """Iterate to convergence; return the number of iterations."""
         self.history = []
@@ -199,13 +284,13 @@ class NewtonSolver:
             t0 = time.perf_counter()
             self.residual()
             self.stats["assemble_time"] += time.perf_counter() - t0
-            if not self._have_jacobian:
+            fresh = not self._have_jacobian
+            if fresh:
                 self._assemble_jacobian()
             t0 = time.perf_counter()
-            self.ksp.solve(self.b, self.du)
+            self._linear_solve()
             self.stats["solve_time"] += time.perf_counter() - t0
             self.stats["solves"] += 1
-            _check(self.ksp, self.name)
             self.u.vector.axpy(-1.0, self.du)
             self.u.x.scatter_forward()
             du, un = self.du.norm(), self.u.vector.norm()
@@ -213,6 +298,14 @@ class NewtonSolver:
                 raise FloatingPointError(f"{self.name}: Newton iterate contains NaN or Inf "
                                          f"(iteration {it}, history {self.history})")
             rel = du / un if un > 0 else du
+            if (not fresh and previous is not None and rel > self.contraction * previous
+                    and rel >= 1e3 * self.rtol):
+                # the kept Jacobian does not contract: undo the step, refactorise here
+                self.u.vector.axpy(1.0, self.du)
+                self.u.x.scatter_forward()
+                self._have_jacobian = False
+                self.stats["rejected_steps"] += 1
+                continue
             self.history.append(rel)
             self.stats["newton_iterations"] += 1
             if du <= self.rtol * un or du == 0.0:
@@ -227,7 +320,7 @@ class NewtonSolver:
                            f"relative corrections {['%.2e' % h for h in self.history]}")
 
 
-def assemble_residual_vector(form: fem.FormMetaClass) -> PETSc.Vec:
+def assemble_residual_vector(form) -> PETSc.Vec:
     """Assemble a linear form with no boundary conditions and add ghost contributions."""
     vec = fem_petsc.assemble_vector(form)
     vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
@@ -237,6 +330,3 @@ def assemble_residual_vector(form: fem.FormMetaClass) -> PETSc.Vec:
 def global_norm(values: np.ndarray) -> float:
     """Euclidean norm of a replicated interface array."""
     return float(np.linalg.norm(np.asarray(values).ravel()))
-
-
-__all__ += ["assemble_residual_vector", "global_norm"]

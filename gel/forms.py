@@ -44,7 +44,8 @@ import dataclasses
 import ufl
 
 __all__ = ["GelCoefficients", "kinematics", "solid_fraction", "network_stress",
-           "fluid_stress", "total_stress", "bulk_residual", "fluid_interface_residual"]
+           "fluid_stress", "total_stress", "fluid_phase_residual", "mixture_residual",
+           "mass_residual", "bulk_residual", "fluid_interface_residual"]
 
 
 @dataclasses.dataclass
@@ -102,19 +103,34 @@ def total_stress(v_f, u, p, c: GelCoefficients):
     return (1 - phi_s) * fluid_stress(v_f, c) + phi_s * network_stress(u, c) - p * ufl.Identity(len(u))
 
 
+def fluid_phase_residual(v_f, u, p, w, c: GelCoefficients, dx):
+    """R_w without boundary terms: the fluid-phase momentum balance (G3) tested with w."""
+    phi_s = solid_fraction(u, c)
+    phi_f = 1 - phi_s
+    return (phi_f * ufl.inner(fluid_stress(v_f, c), ufl.grad(w)) - p * ufl.div(phi_f * w)
+            + c.viscosity * c.xi * phi_f * phi_s * ufl.dot(v_f, w)) * dx
+
+
+def mixture_residual(v_f, u, p, z, c: GelCoefficients, dx):
+    """R_z without boundary terms: the mixture momentum balance (G3 + G4) tested with z."""
+    phi_s = solid_fraction(u, c)
+    return (ufl.inner((1 - phi_s) * fluid_stress(v_f, c) + phi_s * network_stress(u, c), ufl.grad(z))
+            - p * ufl.div(z)) * dx
+
+
+def mass_residual(v_f, u, q, c: GelCoefficients, dx):
+    """R_q: the volume balance (G2) tested with q."""
+    return -q * ufl.div((1 - solid_fraction(u, c)) * v_f) * dx
+
+
 def bulk_residual(v_f, u, p, w, z, q, c: GelCoefficients, dx, body_forces=None):
     """R_w + R_z + R_q without boundary terms (see the module docstring).
 
     ``body_forces`` = optional ``(f_w, f_z, f_q)`` UFL expressions subtracted
     as ``f_w.w + f_z.z + f_q q`` (manufactured solutions).
     """
-    phi_s = solid_fraction(u, c)
-    phi_f = 1 - phi_s
-    sf = fluid_stress(v_f, c)
-    r = (phi_f * ufl.inner(sf, ufl.grad(w)) - p * ufl.div(phi_f * w)
-         + c.viscosity * c.xi * phi_f * phi_s * ufl.dot(v_f, w)
-         + ufl.inner(phi_f * sf + phi_s * network_stress(u, c), ufl.grad(z)) - p * ufl.div(z)
-         - q * ufl.div(phi_f * v_f)) * dx
+    r = (fluid_phase_residual(v_f, u, p, w, c, dx) + mixture_residual(v_f, u, p, z, c, dx)
+         + mass_residual(v_f, u, q, c, dx))
     if body_forces is not None:
         f_w, f_z, f_q = body_forces
         r -= (ufl.dot(f_w, w) + ufl.dot(f_z, z) + f_q * q) * dx

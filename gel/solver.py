@@ -1,0 +1,480 @@
+"""Steady poroelastic gel field solver (model.md sections 2, 3 and 6).
+
+Unknowns on the gel's own mesh, in one mixed space in this order:
+
+    v_f  interstitial fluid velocity (P2 vector), units of V0
+    u    network displacement u_s (P2 vector), units of d L0  (u_s = d u)
+    p    pore pressure (P1), units of the stress unit s (in units of mu_s)
+
+The weak form is ``gel.forms`` (shared with the monolithic reference): the
+fluid phase (G3) tested with w, the mixture balance (G3 + G4) tested with z,
+and the steady mass balance div(phi_f v_f) = 0 (G2) tested with q, with
+phi_s = phi_s0 / J and a neo-Hookean network.  Newton's method with the exact
+Jacobian (``femtools.linalg.NewtonSolver``, Jacobian kept across calls while
+it contracts).
+
+Boundary conditions (n is the gel's outward normal everywhere):
+
+* ``no_slip`` tags: v_f = 0 and u = 0 (the chamber bowl, the posts).
+* ``symmetry`` [(tags, c)]: v_f[c] = 0 and u[c] = 0; the tangential
+  tractions of both phases are zero (natural).
+* ``fluid_interfaces`` {name: tags} (Gamma1, Gamma3): the split of
+  model.md section 6 as written in ``gel.forms.fluid_interface_residual``.
+  Inputs (N, 2) each: ``traction`` T = (Sigma - P I) n, the fluid's traction
+  ON the gel (force per unit length, stress unit s), ``velocity`` V, the
+  fluid velocity (units of V0).  Outputs: ``superficial_velocity``
+  phi_f v_f (its normal component is the volume flux from the gel into the
+  fluid), ``interstitial_velocity`` v_f, ``traction`` the total traction the
+  gel exerts there, (N, 2), and ``pressure`` p, (N, 1).
+* ``cell_interfaces`` {name: tags} (Gamma2): v_f = 0 (steady: v_f = v_s =
+  v_c = 0).  Input ``force`` (N, 2): NODAL forces ON the gel from the cell
+  (entries of a consistent load vector, units of s L0, not a traction
+  density); they enter the mixture equation.  Output ``displacement`` (N, 2):
+  nodal u in units of d L0.
+* Every other boundary is natural: zero partial tractions of both phases,
+  i.e. phi_f (sigma_f - p I) n = 0 and phi_s sigma_s n = 0 (an open,
+  load-free boundary at p = 0).
+
+Interface inputs that are never set are zero.  All interface arrays follow
+the rank-independent node order of ``femtools.interface.InterfaceNodes``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import typing
+
+import numpy as np
+
+from mpi4py import MPI
+from petsc4py import PETSc
+
+import ufl
+from dolfinx import fem
+from dolfinx.fem import petsc as fem_petsc
+
+from femtools.functions import interpolate, quadrature_measure, von_mises
+from femtools.interface import InterfaceNodes
+from femtools.linalg import NewtonSolver
+from femtools.solver import FieldSolver
+from gel import forms
+from gel.parameters import GelParameters
+
+__all__ = ["PoroelasticGelSolver", "GelParameters"]
+
+log = logging.getLogger(__name__)
+
+FIELDS = ("v_f", "u", "p")
+
+# MUMPS options on top of femtools' defaults.  In the paper's units (s = d = 1)
+# the fluid rows are ~Ca = 3e-10 times the network rows; without row/column
+# equilibration MUMPS delays so many pivots in parallel that its workspace
+# estimate fails (INFOG(1) = -9).  Iterative row/column scaling (ICNTL(8) = 8)
+# and more workspace slack (ICNTL(14)) make both unit choices factorise alike.
+DEFAULT_PETSC_OPTIONS = {"mat_mumps_icntl_8": 8, "mat_mumps_icntl_14": 200}
+_FIELD_INDEX = {name: i for i, name in enumerate(FIELDS)}
+
+
+class _GelNewton(NewtonSolver):
+    """``NewtonSolver`` whose residual also carries nodal loads on the mixture equation.
+
+    The loads are given as (owned dof, value) pairs of the mixed space and are
+    subtracted after the ghost update (so each global dof receives its load
+    exactly once) and before the Dirichlet rows are set.
+    """
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.load_dofs = np.empty(0, dtype=np.int32)
+        self.load_values = np.empty(0)
+
+    def residual(self) -> PETSc.Vec:
+        with self.b.localForm() as loc:
+            loc.set(0.0)
+        fem_petsc.assemble_vector(self.b, self.F)
+        fem_petsc.apply_lifting(self.b, [self.J], bcs=[self.bcs], x0=[self.u.vector], scale=-1.0)
+        self.b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        if self.load_dofs.size:
+            with self.b.localForm() as loc:
+                loc.array[self.load_dofs] -= self.load_values
+        fem_petsc.set_bc(self.b, self.bcs, self.u.vector, -1.0)
+        return self.b
+
+
+def _as_tags(tags, what: str) -> tuple[int, ...]:
+    """Normalise an int or an iterable of ints to a tuple of ints."""
+    if isinstance(tags, (int, np.integer)):
+        return (int(tags),)
+    try:
+        out = tuple(int(t) for t in tags)
+    except TypeError:
+        raise TypeError(f"{what}: tags must be an int or an iterable of ints, got {tags!r}") from None
+    if not out:
+        raise ValueError(f"{what}: empty tag list")
+    return out
+
+
+class PoroelasticGelSolver(FieldSolver):
+    """Steady poroelastic two-phase gel on its own mesh (see the module docstring).
+
+    Args:
+        mesh: the gel mesh (P1 or P2 geometry).
+        facet_tags: facet tags of ``mesh``.
+        params: ``GelParameters`` (dimensionless groups and the units s, d).
+        no_slip: tags where v_f = 0 and u = 0.
+        symmetry: ``[(tags, component)]``: v_f[component] = 0 and u[component] = 0.
+        fluid_interfaces: ``{name: tags}`` fluid-gel interfaces (Gamma1, Gamma3).
+        cell_interfaces: ``{name: tags}`` gel-cell interfaces (Gamma2).
+        dirichlet: extra Dirichlet data, mainly for tests:
+            ``[(tags, field, value)]`` or ``[(tags, field, value, component)]``
+            with field in ``"v_f" | "u" | "p"`` (u in units of d L0, p in
+            units of s) and value a number, a vector of numbers, or a
+            callable ``x -> values`` as for ``Function.interpolate``.
+        body_forces: optional ``(f_w, f_z, f_q)`` UFL expressions (manufactured
+            solutions), see ``gel.forms.bulk_residual``.
+        name: name of the solver (logs, PETSc option prefixes).
+        quadrature_degree: quadrature degree of every integral (keep it equal
+            to the monolithic reference's).
+        petsc_options: overrides of the MUMPS LU options (defaults: femtools'
+            plus ``DEFAULT_PETSC_OPTIONS``).
+        newton_rtol: relative Newton tolerance |du| <= rtol |u|.
+        dt: reserved for the transient model (backward Euler); must be None.
+
+    Example::
+
+        params = GelParameters.viscous_units()            # s = d = Ca
+        gel = PoroelasticGelSolver(msh, ft, params, no_slip=[BOWL],
+                                   fluid_interfaces={"Gamma1": GAMMA1})
+        gel.set_interface_data("Gamma1", traction=T, velocity=V)
+        gel.solve()
+        flux = gel.interface_data("Gamma1")["superficial_velocity"]
+    """
+
+    def __init__(self, mesh, facet_tags, params: GelParameters, *,
+                 no_slip: typing.Iterable[int] = (),
+                 symmetry: typing.Iterable[tuple] = (),
+                 fluid_interfaces: typing.Mapping[str, typing.Any] | None = None,
+                 cell_interfaces: typing.Mapping[str, typing.Any] | None = None,
+                 dirichlet: typing.Iterable[tuple] = (),
+                 body_forces=None, name: str = "gel", quadrature_degree: int = 4,
+                 petsc_options: dict | None = None, newton_rtol: float = 1e-11,
+                 dt: float | None = None):
+        t0 = time.perf_counter()
+        super().__init__()
+        if not isinstance(params, GelParameters):
+            raise TypeError(f"params must be a GelParameters, got {type(params).__name__}")
+        if dt is not None:
+            raise NotImplementedError("the transient gel (backward Euler, G1-G5) is not implemented; "
+                                      f"dt must be None, got {dt!r}")
+        if int(quadrature_degree) < 1:
+            raise ValueError(f"quadrature_degree must be >= 1, got {quadrature_degree!r}")
+        if not (0.0 < newton_rtol < 1.0):
+            raise ValueError(f"newton_rtol must be in (0, 1), got {newton_rtol!r}")
+        self.name = name
+        self.mesh = mesh
+        self.facet_tags = facet_tags
+        self.quadrature_degree = int(quadrature_degree)
+        self.dt = dt
+        comm = mesh.comm
+        self._present_tags = set(int(t) for t in np.unique(
+            np.hstack(comm.allgather(np.unique(facet_tags.values)))))
+        fluid_interfaces = dict(fluid_interfaces or {})
+        cell_interfaces = dict(cell_interfaces or {})
+        self._fluid, self._cell = {}, {}
+        clash = set(fluid_interfaces) & set(cell_interfaces)
+        if clash:
+            raise ValueError(f"interface names used both as fluid and cell interfaces: {sorted(clash)}")
+
+        self._build_spaces()
+        self.params = params
+        self._build_coefficients(params)
+        self.dx = quadrature_measure("dx", mesh, degree=self.quadrature_degree)
+        self.ds = quadrature_measure("ds", mesh, facet_tags, degree=self.quadrature_degree)
+        self.n = ufl.FacetNormal(mesh)
+
+        v_f, u, p = ufl.split(self.state)
+        w, z, q = ufl.TestFunctions(self.W)
+        F = forms.bulk_residual(v_f, u, p, w, z, q, self.coefficients, self.dx, body_forces)
+        for iname, tags in fluid_interfaces.items():
+            F += self._add_fluid_interface(iname, tags)
+        for iname, tags in cell_interfaces.items():
+            self._add_cell_interface(iname, tags)
+        self.bcs = self._build_bcs(no_slip, symmetry, dirichlet)
+        self.residual_form = F
+        options = dict(DEFAULT_PETSC_OPTIONS, **(petsc_options or {}))
+        self._newton = _GelNewton(F, self.state, self.bcs, name=name, rtol=newton_rtol, reuse="adaptive",
+                                  petsc_options=options)
+        self._build_postprocessing()
+        self.timing["setup"] = time.perf_counter() - t0
+        self.timing["newton_iterations"] = 0
+
+    # -- construction helpers ---------------------------------------------
+    def _build_spaces(self) -> None:
+        """Mixed space [v_f (P2 vector), u (P2 vector), p (P1)], its collapsed subspaces, the state."""
+        cell = self.mesh.ufl_cell()
+        P2 = ufl.VectorElement("Lagrange", cell, 2)
+        P1 = ufl.FiniteElement("Lagrange", cell, 1)
+        self.W = fem.FunctionSpace(self.mesh, ufl.MixedElement([P2, P2, P1]))
+        self._sub = [self.W.sub(i).collapse() for i in range(3)]   # (space, parent dofs)
+        self.Q2 = fem.FunctionSpace(self.mesh, ("Lagrange", 2))    # nodal scalars at the P2 nodes
+        self.state = fem.Function(self.W, name=f"{self.name}_state")
+        # the previous state, for the transient extension (v_s = (u - u_old)/dt)
+        self.state_old = fem.Function(self.W, name=f"{self.name}_state_old")
+
+    def _build_coefficients(self, params: GelParameters) -> None:
+        """Coefficients as Constants: one compiled form serves every parameter value."""
+        self._const = {k: fem.Constant(self.mesh, PETSc.ScalarType(0.0)) for k in
+                       ("phi_s0", "xi", "lambda_s", "beta", "eta", "viscosity", "stiffness", "d")}
+        self.coefficients = forms.GelCoefficients(**self._const)
+        self._stress_unit = fem.Constant(self.mesh, PETSc.ScalarType(0.0))   # s, output in units of mu_s
+        self._assign_constants(params)
+
+    def _add_fluid_interface(self, iname: str, tags) -> ufl.Form:
+        """Declare a fluid interface; return its residual terms (gel.forms.fluid_interface_residual)."""
+        tags = self._check_tags(tags, f"fluid_interfaces[{iname!r}]")
+        V_vf, map_vf = self._sub[0]
+        nodes = InterfaceNodes(V_vf, self.facet_tags, tags, parent_dofs=map_vf)
+        scalar = InterfaceNodes(self.Q2, self.facet_tags, tags)
+        if not np.array_equal(nodes.points, scalar.points):
+            raise RuntimeError(f"{self.name}: {iname}: P2 vector and scalar interface nodes differ")
+        T = fem.Function(V_vf, name=f"{iname}_traction")
+        V = fem.Function(V_vf, name=f"{iname}_velocity")
+        self._fluid[iname] = dict(tags=tags, nodes=nodes, scalar=scalar, T=T, V=V,
+                                  traction=np.zeros((nodes.size, 2)))
+        self._add_interface(iname, nodes, {"traction": 2, "velocity": 2})
+        v_f, u, _ = ufl.split(self.state)
+        w, z, _ = ufl.TestFunctions(self.W)
+        return forms.fluid_interface_residual(v_f, u, w, z, T, V, self.n, self.coefficients, self.ds(tags))
+
+    def _add_cell_interface(self, iname: str, tags) -> None:
+        """Declare a cell interface: the owned mixed-space u dofs that receive its nodal forces."""
+        tags = self._check_tags(tags, f"cell_interfaces[{iname!r}]")
+        V_u, map_u = self._sub[1]
+        nodes = InterfaceNodes(V_u, self.facet_tags, tags, parent_dofs=map_u)
+        n_owned = self.W.dofmap.index_map.size_local * self.W.dofmap.index_map_bs
+        dofs = nodes.dofs(parent=True)                   # (n_local, 2) mixed-space dofs of u
+        keep = np.all(dofs < n_owned, axis=1)            # owned by this rank in the MIXED space
+        self._cell[iname] = dict(tags=tags, nodes=nodes, dofs=dofs[keep], rows=nodes.index[keep],
+                                 force=np.zeros((nodes.size, 2)))
+        self._add_interface(iname, nodes, {"force": 2})
+
+    def _build_bcs(self, no_slip, symmetry, dirichlet) -> list:
+        """Dirichlet conditions: no slip, symmetry, v_f = 0 on cell interfaces, extra data."""
+        self._bc_functions = []
+        bcs = []
+        if isinstance(no_slip, (int, np.integer)) or len(tuple(no_slip)) > 0:
+            tags = self._check_tags(no_slip, "no_slip")
+            bcs += [self._dirichlet(tags, "v_f", 0.0), self._dirichlet(tags, "u", 0.0)]
+        for entry in symmetry:
+            try:
+                tags, comp = entry
+            except (TypeError, ValueError):
+                raise ValueError(f"symmetry entries are (tags, component), got {entry!r}") from None
+            tags = self._check_tags(tags, "symmetry")
+            bcs += [self._dirichlet(tags, "v_f", 0.0, comp), self._dirichlet(tags, "u", 0.0, comp)]
+        for data in self._cell.values():
+            bcs.append(self._dirichlet(data["tags"], "v_f", 0.0))
+        for entry in dirichlet:
+            if not isinstance(entry, (tuple, list)) or len(entry) not in (3, 4):
+                raise ValueError(f"dirichlet entries are (tags, field, value[, component]), got {entry!r}")
+            bcs.append(self._dirichlet(self._check_tags(entry[0], "dirichlet"), *entry[1:]))
+        return bcs
+
+    def _build_postprocessing(self) -> None:
+        """Forms for the nodal phi_f average and the P1 -> P2 pressure interpolation."""
+        _, u, p = ufl.split(self.state)
+        psi = ufl.TestFunction(self.Q2)
+        ds_all = quadrature_measure("ds", self.mesh, degree=self.quadrature_degree)
+        phi_f = 1 - forms.solid_fraction(u, self.coefficients)
+        self._phi_f_num = fem.form(phi_f * psi * ds_all)
+        self._phi_f_den = fem.form(psi * ds_all)
+        self._p_expr = fem.Expression(p, self.Q2.element.interpolation_points())
+        self._p2 = fem.Function(self.Q2)
+
+    def _check_tags(self, tags, what: str) -> tuple[int, ...]:
+        tags = _as_tags(tags, what)
+        missing = [t for t in tags if t not in self._present_tags]
+        if missing:
+            raise ValueError(f"{self.name}: {what}: facet tag(s) {missing} not in the mesh's facet tags "
+                             f"{sorted(self._present_tags)}")
+        return tags
+
+    def _dirichlet(self, tags, field: str, value, component: int | None = None) -> fem.DirichletBCMetaClass:
+        """Dirichlet condition on ``field`` (optionally one component) on facets ``tags``."""
+        if field not in _FIELD_INDEX:
+            raise ValueError(f"{self.name}: Dirichlet field must be one of {FIELDS}, got {field!r}")
+        i = _FIELD_INDEX[field]
+        sub = self.W.sub(i)
+        if component is not None:
+            if field == "p" or component not in (0, 1):
+                raise ValueError(f"{self.name}: component must be 0 or 1 for v_f and u "
+                                 f"(None for p), got {component!r} for {field!r}")
+            sub = sub.sub(int(component))
+        space, _ = sub.collapse()
+        g = fem.Function(space)
+        bs = space.dofmap.index_map_bs
+        if callable(value):
+            g.interpolate(value)
+        else:
+            val = np.asarray(value, dtype=float).ravel()
+            if val.size not in (1, bs):
+                raise ValueError(f"{self.name}: Dirichlet value for {field!r} must be a number or have "
+                                 f"{bs} components, got {value!r}")
+            g.x.array.reshape(-1, bs)[:] = val
+        g.x.scatter_forward()
+        facets = np.unique(np.hstack([self.facet_tags.find(t) for t in tags]).astype(np.int32))
+        dofs = fem.locate_dofs_topological((sub, space), self.mesh.topology.dim - 1, facets)
+        self._bc_functions.append(g)
+        return fem.dirichletbc(g, dofs, sub)
+
+    def _assign_constants(self, params: GelParameters) -> None:
+        values = dict(phi_s0=params.phi_s0, xi=params.xi, lambda_s=params.lambda_s, beta=params.beta,
+                      eta=params.eta, viscosity=params.viscosity, stiffness=params.stiffness,
+                      d=params.displacement_scale)
+        for k, v in values.items():
+            self._const[k].value = v
+        self._stress_unit.value = params.stress_scale
+
+    def update_parameters(self, params: GelParameters) -> None:
+        """Change the parameters without recompiling; the next solve refactorises.
+
+        Note that changing ``stress_scale`` or ``displacement_scale`` changes
+        the units of the state and of all interface data.
+        """
+        if not isinstance(params, GelParameters):
+            raise TypeError(f"params must be a GelParameters, got {type(params).__name__}")
+        self.params = params
+        self._assign_constants(params)
+        self._newton.invalidate_jacobian()
+
+    # -- FieldSolver interface -------------------------------------------
+    def _set_input(self, interface: str, key: str, values: np.ndarray) -> None:
+        if interface in self._fluid:
+            data = self._fluid[interface]
+            if key == "traction":
+                data["traction"] = values.copy()
+                data["nodes"].to_function(values, data["T"])
+            else:
+                data["nodes"].to_function(values, data["V"])
+        else:
+            self._cell[interface]["force"] = values.copy()
+
+    def _solve(self) -> None:
+        dofs = [d["dofs"].ravel() for d in self._cell.values()]
+        vals = [d["force"][d["rows"]].ravel() for d in self._cell.values()]
+        self._newton.load_dofs = np.hstack(dofs).astype(np.int32) if dofs else np.empty(0, np.int32)
+        self._newton.load_values = np.hstack(vals) if vals else np.empty(0)
+        its = self._newton.solve()
+        self.timing["newton_iterations"] += its
+        log.debug("%s: Newton converged in %d iterations, corrections %s", self.name, its,
+                  self._newton.history)
+
+    def interface_data(self, name: str) -> dict[str, np.ndarray]:
+        """Outputs on interface ``name`` (see the module docstring).
+
+        Fluid interfaces:
+            ``superficial_velocity`` (N, 2): phi_f v_f at the nodes (units of V0),
+                with phi_f the boundary-lumped average of 1 - phi_s0/J around each
+                node (J is discontinuous between cells; the average is rank-independent).
+            ``interstitial_velocity`` (N, 2): nodal v_f.
+            ``traction`` (N, 2): the total traction (phi_f sigma_f + phi_s sigma_s - p I) n
+                the gel applies there, in the stress unit s.  The gel enforces I14,
+                T_total = T, weakly in its mixture equation, so this is the input T
+                (returned as given: the nodal reaction of the mixture equation would
+                only restate the input's consistent load vector).
+            ``pressure`` (N, 1): nodal pore pressure p (units of s).
+        Cell interfaces:
+            ``displacement`` (N, 2): nodal u in units of d L0.
+        """
+        nodes = self.interface_nodes(name)
+        x = self.state.x.array
+        if name in self._fluid:
+            data = self._fluid[name]
+            v = nodes.from_array(x, parent=True)
+            return {"superficial_velocity": self._phi_f_nodal(data["scalar"]) * v,
+                    "interstitial_velocity": v,
+                    "traction": data["traction"].copy(),
+                    "pressure": self._pressure_nodal(data["scalar"])}
+        return {"displacement": nodes.from_array(x, parent=True)}
+
+    # -- nodal helpers ---------------------------------------------------
+    def _phi_f_nodal(self, scalar_nodes: InterfaceNodes) -> np.ndarray:
+        num = fem_petsc.assemble_vector(self._phi_f_num)
+        den = fem_petsc.assemble_vector(self._phi_f_den)
+        for vec in (num, den):
+            vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        a, b = scalar_nodes.from_array(num.array), scalar_nodes.from_array(den.array)
+        num.destroy()
+        den.destroy()
+        if np.any(b <= 0):
+            raise RuntimeError(f"{self.name}: non-positive boundary weight in the phi_f average")
+        return a / b
+
+    def _pressure_nodal(self, scalar_nodes: InterfaceNodes) -> np.ndarray:
+        self._p2.interpolate(self._p_expr)
+        return scalar_nodes.from_function(self._p2)
+
+    # -- accessors ---------------------------------------------------------
+    def interstitial_velocity(self) -> fem.Function:
+        """v_f (collapsed P2 vector Function), units of V0."""
+        return self.state.sub(0).collapse()
+
+    def displacement(self) -> fem.Function:
+        """u (collapsed P2 vector Function) in units of d L0: u_s = d * u."""
+        return self.state.sub(1).collapse()
+
+    def pore_pressure(self) -> fem.Function:
+        """p (collapsed P1 Function) in the stress unit s: p_paper = s * p."""
+        return self.state.sub(2).collapse()
+
+    @property
+    def newton(self) -> NewtonSolver:
+        """The Newton solver (read its ``stats`` and ``history``)."""
+        return self._newton
+
+    # -- post-processing (UFL expressions of the current state) ---------------
+    def solid_fraction(self):
+        """phi_s = phi_s0 / J (UFL)."""
+        return forms.solid_fraction(ufl.split(self.state)[1], self.coefficients)
+
+    def network_stress(self):
+        """Network Cauchy stress sigma_s in units of mu_s, s * sigma_hat_s (UFL)."""
+        return self._stress_unit * forms.network_stress(ufl.split(self.state)[1], self.coefficients)
+
+    def network_von_mises(self):
+        """2D von Mises measure of sigma_s in units of mu_s (UFL)."""
+        return von_mises(self.network_stress())
+
+    def total_stress(self):
+        """Total stress phi_f sigma_f + phi_s sigma_s - p I in units of mu_s (UFL)."""
+        v_f, u, p = ufl.split(self.state)
+        return self._stress_unit * forms.total_stress(v_f, u, p, self.coefficients)
+
+    def stress_function(self, which: str = "network") -> fem.Function:
+        """Interpolate a stress into a DG1 tensor space (units of mu_s).
+
+        Args:
+            which: ``"network"`` (sigma_s) or ``"total"`` (the mixture stress).
+        """
+        exprs = {"network": self.network_stress, "total": self.total_stress}
+        if which not in exprs:
+            raise ValueError(f"which must be one of {sorted(exprs)}, got {which!r}")
+        T = fem.TensorFunctionSpace(self.mesh, ("DG", 1))
+        return interpolate(exprs[which](), T)
+
+    def reset(self) -> None:
+        """Zero the state (the next solve starts from rest)."""
+        self.state.x.array[:] = 0.0
+        self.state.x.scatter_forward()
+
+    def norms(self) -> dict[str, float]:
+        """Global Euclidean norms of the owned nodal values of v_f, u, p (for checks and logs)."""
+        out = {}
+        comm = self.mesh.comm
+        for i, f in enumerate(FIELDS):
+            g = self.state.sub(i).collapse()
+            imap, bs = g.function_space.dofmap.index_map, g.function_space.dofmap.index_map_bs
+            local = float(np.sum(g.x.array[: imap.size_local * bs] ** 2))
+            out[f] = float(np.sqrt(comm.allreduce(local, op=MPI.SUM)))
+        return out
