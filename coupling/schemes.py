@@ -1,0 +1,708 @@
+"""Coupling schemes: serial (Gauss–Seidel) and parallel (Jacobi), implicit and explicit.
+
+A scheme owns the current value of every coupling data (on its writer's
+points) and runs the participants:
+
+* **Serial** schemes run the participants in the configured ``order``; each
+  reads the newest values.  A data is *backward* if some reader precedes its
+  writer in the order (it is read before it is written within a sweep); the
+  backward data form the fixed-point vector ``x`` that is accelerated.  In
+  each sweep all readers of a backward data that precede its writer read the
+  (accelerated) ``x``; readers after the writer read the fresh value.
+  Forward data are always used fresh; their residual is the change since the
+  previous iteration.
+* **Parallel** schemes run every participant on the same values (those of
+  the previous iteration); ``x`` is the vector of *all* exchanged data.
+* **Implicit** schemes iterate each window until the convergence measures are
+  met; **explicit** schemes do one sweep per window.
+
+Time-dependent runs (:meth:`CouplingScheme.run`) split ``[t, t_end]`` into
+windows of length ``dt``.  In each window of an implicit scheme every
+participant's state is saved (``save_state``) before the first iteration and
+restored (``load_state``) before every further one, and ``advance(t, dt)`` is
+called before every solve.  The initial guess of a window is the last value
+of the previous one (constant extrapolation).
+
+With a residual ``r = x̃ - x``, the iteration stops with
+:class:`CouplingDivergedError` if a data's values or residual are not finite,
+or if ``‖r_k‖ > divergence_factor * max(‖r_1‖, 1e-6 ‖x̃_1‖)`` for a data.
+
+MPI: all arrays are replicated on every rank; after each iteration the next
+iterate and the decision (continue, converged, diverged) are broadcast from
+rank 0 so that every rank takes the same decision.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+import sys
+import time as _time
+from typing import Any, Mapping, Sequence, TextIO
+
+import numpy as np
+
+from coupling.acceleration import Acceleration, build_acceleration
+from coupling.config import CouplingConfig, load_config
+from coupling.convergence import ConvergenceMeasure, MeasureValue, build_measure
+from coupling.errors import CouplingDivergedError, CouplingNotConvergedError
+from coupling.layout import VectorLayout
+from coupling.mapping import Mapping as DataMapping
+from coupling.mapping import build_mapping
+from coupling.parallel import default_comm
+from coupling.participant import Data, Participant
+from coupling.records import (CouplingResult, IterationRecord, RecordedSolve, Recording,
+                              WindowRecord, format_progress, write_records)
+from coupling.serialization import load_npz, save_npz
+
+__all__ = ["CouplingScheme", "SerialImplicitScheme", "ParallelImplicitScheme",
+           "SerialExplicitScheme", "ParallelExplicitScheme", "build_scheme"]
+
+_DIVERGENCE_VALUE_FLOOR = 1e-6
+_CHECKPOINT_FORMAT = "coupling-checkpoint"
+_CHECKPOINT_VERSION = 1
+
+
+class CouplingScheme:
+    """Base class of the coupling schemes (use :func:`build_scheme`).
+
+    Args:
+        config: A :class:`CouplingConfig` or a ``[coupling]`` table (dict).
+        participants: The participants (a sequence, or a mapping name -> participant).
+        data: The coupling data.
+        comm: MPI communicator (default: ``MPI.COMM_WORLD`` if mpi4py is
+            available, else serial).
+        stream: Where progress lines go (default: ``sys.stdout``).
+
+    Attributes:
+        config: The validated configuration.
+        order: Participant names in execution order.
+        data: Data name -> :class:`Data`.
+        accelerated: Names of the data in the fixed-point vector ``x``.
+        layout: Layout of ``x``.
+        acceleration: The :class:`Acceleration`.
+        time: Start of the next time window.
+        window: Index of the next window.
+        history: Records of every window run since construction (or restore).
+        recording: The :class:`Recording` if ``record_data`` is set, else ``None``.
+        result: The result of the last :meth:`solve` / :meth:`run`.
+    """
+
+    scheme_name = ""
+    serial = True
+    implicit = True
+
+    def __init__(self, config: CouplingConfig | Mapping[str, Any],
+                 participants: Sequence[Participant] | Mapping[str, Participant],
+                 data: Sequence[Data], comm: Any = None, stream: TextIO | None = None):
+        if isinstance(config, Mapping) and "scheme" not in config:
+            config = {**config, "scheme": self.scheme_name}
+        self.config = load_config(config)
+        if self.config.scheme != self.scheme_name:
+            raise ValueError(f"coupling.scheme = {self.config.scheme!r} does not match "
+                             f"{type(self).__name__} ({self.scheme_name!r}); use build_scheme()")
+        self.comm = default_comm() if comm is None else comm
+        self._stream = stream
+        self.participants = self._check_participants(participants)
+        self.order = self._check_order()
+        self.data = self._check_data(data)
+        self._reads = {p: [d.name for d in self.data.values() if p in d.readers] for p in self.order}
+        self._writes = {p: [d.name for d in self.data.values() if d.writer == p] for p in self.order}
+        self._points: dict[tuple[str, str], np.ndarray] = {}
+        self._mappings: dict[tuple[str, str], DataMapping] = {}
+        for d in self.data.values():
+            writer_points = self.points(d.writer, d.mesh)
+            for reader in d.readers:
+                self._mappings[(d.name, reader)] = build_mapping(
+                    d.mapping, writer_points, self.points(reader, d.mesh), data_name=d.name,
+                    reader=reader, curve=d.curve, curve_order=d.curve_order)
+        self.values: dict[str, np.ndarray] = {name: self._initial_value(d)
+                                              for name, d in self.data.items()}
+        self.accelerated = self._accelerated_data()
+        self.layout = VectorLayout(self.accelerated,
+                                   [self.values[n].shape for n in self.accelerated])
+        self.acceleration: Acceleration = build_acceleration(self.config.acceleration, self.layout)
+        self.measures = self._build_measures()
+        self.time = 0.0
+        self.window = 0
+        self.history: list[WindowRecord] = []
+        self.recording: Recording | None = Recording() if self.config.record_data else None
+        self.result: CouplingResult | None = None
+
+    # ------------------------------------------------------------------ setup checks
+    def _check_participants(self, participants: Any) -> dict[str, Participant]:
+        items = list(participants.values()) if isinstance(participants, Mapping) else list(participants)
+        if not items:
+            raise ValueError("build_scheme: no participants given")
+        out: dict[str, Participant] = {}
+        for p in items:
+            if not isinstance(p, Participant):
+                raise TypeError(f"participant {p!r} is not a coupling.Participant")
+            name = getattr(p, "name", "")
+            if not isinstance(name, str) or not name:
+                raise ValueError(f"participant {p!r} has no name (set the attribute 'name')")
+            if name in out:
+                raise ValueError(f"two participants are named {name!r}; names must be unique")
+            out[name] = p
+        if isinstance(participants, Mapping):
+            for key, p in participants.items():
+                if key != p.name:
+                    raise ValueError(f"participant mapping key {key!r} differs from its name {p.name!r}")
+        return out
+
+    def _check_order(self) -> tuple[str, ...]:
+        names = tuple(self.participants)
+        order = self.config.order or names
+        unknown = [o for o in order if o not in self.participants]
+        if unknown:
+            raise ValueError(f"coupling.order = {list(order)!r} names unknown participants "
+                             f"{unknown}; participants: {list(names)}")
+        missing = [n for n in names if n not in order]
+        if missing:
+            raise ValueError(f"coupling.order = {list(order)!r} misses participants {missing}")
+        return tuple(order)
+
+    def _check_data(self, data: Sequence[Data]) -> dict[str, Data]:
+        out: dict[str, Data] = {}
+        for d in data:
+            if not isinstance(d, Data):
+                raise TypeError(f"{d!r} is not a coupling.Data")
+            if d.name in out:
+                raise ValueError(f"two data are named {d.name!r}; names must be unique")
+            for who in (d.writer,) + d.readers:
+                if who not in self.participants:
+                    raise ValueError(f"data {d.name!r} names participant {who!r}, which is not "
+                                     f"among the participants {list(self.participants)}")
+            out[d.name] = d
+        if not out:
+            raise ValueError("build_scheme: no coupling data given")
+        return out
+
+    def points(self, participant: str, mesh: str) -> np.ndarray:
+        """The interface points of ``participant`` on ``mesh`` (cached, read-only copy)."""
+        key = (participant, mesh)
+        if key not in self._points:
+            raw = self.participants[participant].interface_points(mesh)
+            pts = np.array(raw, dtype=float)
+            if pts.ndim == 1:
+                pts = pts[:, None]
+            if pts.ndim != 2 or pts.shape[0] == 0:
+                raise ValueError(f"participant {participant!r}: interface_points({mesh!r}) must "
+                                 f"return a non-empty (N, space_dim) array, got shape {np.shape(raw)}")
+            if not np.all(np.isfinite(pts)):
+                raise ValueError(f"participant {participant!r}: interface_points({mesh!r}) "
+                                 f"contains NaN or Inf")
+            if self.config.check_replicated:
+                self._check_replicated(participant, {f"interface_points({mesh!r})": pts})
+            pts.setflags(write=False)
+            self._points[key] = pts
+        return self._points[key]
+
+    def _shape(self, name: str) -> tuple[int, int]:
+        d = self.data[name]
+        return (self.points(d.writer, d.mesh).shape[0], d.dim)
+
+    def _as_data_array(self, name: str, value: Any, what: str) -> np.ndarray:
+        shape = self._shape(name)
+        arr = np.array(value, dtype=float)
+        if arr.shape == shape[:1] and shape[1] == 1:
+            arr = arr.reshape(shape)
+        if arr.shape != shape:
+            raise ValueError(f"{what}: data {self.data[name].name!r} must have shape {shape} "
+                             f"(writer points x dim), got {arr.shape}")
+        return arr
+
+    def _initial_value(self, d: Data) -> np.ndarray:
+        value = self.participants[d.writer].initial_data(d.name)
+        if value is None:
+            return np.zeros(self._shape(d.name))
+        return self._as_data_array(d.name, value, f"participant {d.writer!r}: initial_data")
+
+    def _accelerated_data(self) -> tuple[str, ...]:
+        if not self.implicit:
+            return ()
+        if not self.serial:
+            return tuple(self.data)
+        pos = {name: i for i, name in enumerate(self.order)}
+        return tuple(name for name, d in self.data.items()
+                     if any(pos[r] < pos[d.writer] for r in d.readers))
+
+    def _build_measures(self) -> list[ConvergenceMeasure]:
+        measures: list[ConvergenceMeasure] = []
+        for i, m in enumerate(self.config.convergence):
+            if m.data == "*":
+                targets = list(self.data)
+            elif m.data in self.data:
+                targets = [m.data]
+            else:
+                raise ValueError(f"coupling.convergence[{i}].data = {m.data!r} is not a coupling "
+                                 f"data; allowed values: '*', "
+                                 f"{', '.join(repr(n) for n in self.data)}")
+            measures += [build_measure(m.type, name, m.limit, m.suffices) for name in targets]
+        if self.implicit and not measures:
+            raise ValueError("coupling.convergence: an implicit scheme needs at least one "
+                             "convergence measure ([[coupling.convergence]] with type and limit)")
+        return measures
+
+    # ------------------------------------------------------------------ helpers
+    @property
+    def forward(self) -> tuple[str, ...]:
+        """Data not in the fixed-point vector (serial schemes: read after written)."""
+        return tuple(n for n in self.data if n not in self.accelerated)
+
+    def latest(self, data_name: str) -> np.ndarray:
+        """Latest value of a data on its writer's points (a copy), shape ``(N, dim)``."""
+        if data_name not in self.data:
+            raise KeyError(f"unknown data {data_name!r}; data: {list(self.data)}")
+        return self.values[data_name].copy()
+
+    def mapped(self, data_name: str, reader: str) -> np.ndarray:
+        """Latest value of a data mapped onto ``reader``'s points."""
+        return self._mappings[(data_name, reader)](self.values[data_name])
+
+    def mapping(self, data_name: str, reader: str) -> DataMapping:
+        """The :class:`coupling.mapping.Mapping` of a data to one reader."""
+        return self._mappings[(data_name, reader)]
+
+    def _is_root(self) -> bool:
+        return self.comm.Get_rank() == 0
+
+    def _print(self, line: str) -> None:
+        if self.config.verbose and self._is_root():
+            print(line, file=self._stream if self._stream is not None else sys.stdout, flush=True)
+
+    def _call(self, participant: str, method: str, *args: Any) -> Any:
+        try:
+            return getattr(self.participants[participant], method)(*args)
+        except NotImplementedError as exc:
+            raise TypeError(f"participant {participant!r} must implement {method}() for "
+                            f"time-dependent {'implicit' if self.implicit else 'explicit'} coupling "
+                            f"({exc})") from exc
+
+    def _check_replicated(self, participant: str, outputs: dict[str, np.ndarray]) -> None:
+        if self.comm.Get_size() == 1:
+            return
+        for name, arr in outputs.items():
+            digest = hashlib.sha1(np.ascontiguousarray(arr).tobytes()).hexdigest()
+            digests = self.comm.allgather((arr.shape, digest))
+            if len(set(digests)) > 1:
+                raise RuntimeError(f"participant {participant!r} returned different values of "
+                                   f"{name!r} on different MPI ranks; interface points and outputs "
+                                   f"must be replicated (use coupling.parallel.gather_rows)")
+
+    def _solve_participant(self, name: str, window: int, iteration: int, t: float | None,
+                           dt: float | None, states: dict[str, Any],
+                           solve_time: dict[str, float]) -> dict[str, np.ndarray]:
+        if t is not None:
+            if self.implicit and iteration > 1:
+                self._call(name, "load_state", states[name])
+            self._call(name, "advance", t, dt)
+        inputs = {d: self._mappings[(d, name)](self.values[d]) for d in self._reads[name]}
+        recorded_inputs = {k: v.copy() for k, v in inputs.items()} if self.recording else None
+        start = _time.perf_counter()
+        raw = self.participants[name].solve(inputs)
+        solve_time[name] = _time.perf_counter() - start
+        if not isinstance(raw, Mapping):
+            raise TypeError(f"participant {name!r}: solve() must return a dict data name -> array, "
+                            f"got {type(raw).__name__}")
+        expected = set(self._writes[name])
+        if set(raw) != expected:
+            raise ValueError(f"participant {name!r}: solve() returned data {sorted(raw)} but must "
+                             f"return exactly the data it writes: {sorted(expected)}")
+        outputs = {d: self._as_data_array(d, raw[d], f"participant {name!r}: solve()")
+                   for d in self._writes[name]}
+        if self.config.check_replicated:
+            self._check_replicated(name, outputs)
+        if self.recording is not None:
+            self.recording.add(RecordedSolve(window, iteration, name, t, dt, recorded_inputs, outputs))
+        return outputs
+
+    def _sweep(self, window: int, iteration: int, t: float | None, dt: float | None,
+               states: dict[str, Any]) -> dict[str, float]:
+        solve_time: dict[str, float] = {}
+        if self.serial:
+            for name in self.order:
+                outputs = self._solve_participant(name, window, iteration, t, dt, states, solve_time)
+                self.values.update(outputs)
+        else:
+            new_values: dict[str, np.ndarray] = {}
+            for name in self.order:
+                new_values.update(self._solve_participant(name, window, iteration, t, dt, states,
+                                                          solve_time))
+            self.values.update(new_values)
+        return solve_time
+
+    # ------------------------------------------------------------------ one window
+    def _measure_values(self, evals: list[MeasureValue], rnorm: dict[str, float],
+                        vnorm: dict[str, float]) -> dict[str, float]:
+        out: dict[str, float] = {}
+        for m in evals:
+            out.setdefault(m.data, m.value)
+        for name in self.data:
+            if name not in out:
+                out[name] = 0.0 if rnorm[name] == 0.0 else (
+                    rnorm[name] / vnorm[name] if vnorm[name] > 0.0 else math.inf)
+        return {name: out[name] for name in self.data}
+
+    def _divergence(self, k: int, rnorm: dict[str, float], vnorm: dict[str, float],
+                    first_r: dict[str, float], first_v: dict[str, float]) -> str | None:
+        factor = self.config.divergence_factor
+        for name in self.data:
+            if not (math.isfinite(rnorm[name]) and math.isfinite(vnorm[name])):
+                return f"data {name!r} is not finite (NaN/Inf) in iteration {k}"
+        worst, worst_growth, worst_ref = None, 0.0, 0.0
+        for name in self.data:
+            ref = max(first_r[name], _DIVERGENCE_VALUE_FLOOR * first_v[name])
+            if ref > 0.0 and rnorm[name] > factor * ref:
+                growth = rnorm[name] / ref
+                if growth > worst_growth:
+                    worst, worst_growth, worst_ref = name, growth, ref
+        if worst is not None:
+            return (f"residual of data {worst!r} grew to {rnorm[worst]:.3e}, {worst_growth:.3e} "
+                    f"times its reference {worst_ref:.3e} (divergence_factor {factor:g}) "
+                    f"in iteration {k}")
+        return None
+
+    def _history_text(self, rec: WindowRecord, name: str, norms: bool = False) -> str:
+        values = [r.residual_norms[name] if norms else r.measure_values[name] for r in rec.records]
+        shown = values if len(values) <= 12 else values[:4] + ["..."] + values[-7:]
+        return "[" + ", ".join(v if isinstance(v, str) else f"{v:.2e}" for v in shown) + "]"
+
+    def _where(self, rec: WindowRecord) -> str:
+        if rec.time is None:
+            return "steady solve"
+        return f"window {rec.window} (t = {rec.time:.6g}, dt = {rec.dt:.3g})"
+
+    def _not_converged_message(self, rec: WindowRecord) -> str:
+        last = rec.records[-1]
+        unmet = [m for m in last.measures if not m.met]
+        worst = max(unmet, key=lambda m: m.ratio) if unmet else None
+        text = (f"coupling did not converge in {rec.iterations} iterations "
+                f"(max_iterations) in the {self._where(rec)}")
+        if worst is not None:
+            text += (f"; worst data {worst.data!r}: {worst.kind} measure {worst.value:.3e} > limit "
+                     f"{worst.limit:.1e}; its history: {self._history_text(rec, worst.data)}")
+        return text
+
+    def _diverged_message(self, rec: WindowRecord, reason: str) -> str:
+        name = None
+        for candidate in self.data:
+            if f"data {candidate!r}" in reason:
+                name = candidate
+                break
+        text = f"coupling diverged in the {self._where(rec)}: {reason}"
+        if name is not None:
+            text += (f"; residual norms of {name!r}: {self._history_text(rec, name, norms=True)}"
+                     f"; its convergence measure: {self._history_text(rec, name)}")
+        return text
+
+    def _run_window(self, t: float | None, dt: float | None) -> WindowRecord:
+        transient = t is not None
+        rec = WindowRecord(window=self.window, time=t, dt=dt)
+        states: dict[str, Any] = {}
+        if transient and self.implicit:
+            for name in self.order:
+                states[name] = self._call(name, "save_state")
+                if self.recording is not None:
+                    self.recording.checkpoints[(self.window, name)] = states[name]
+        x = self.layout.concat(self.values)
+        first_r: dict[str, float] = {}
+        first_v: dict[str, float] = {}
+        max_iterations = self.config.max_iterations if self.implicit else 1
+        for k in range(1, max_iterations + 1):
+            before = {n: v.copy() for n, v in self.values.items()}
+            solve_time = self._sweep(self.window, k, t, dt, states)
+            rnorm = {n: float(np.linalg.norm(self.values[n] - before[n])) for n in self.data}
+            vnorm = {n: float(np.linalg.norm(self.values[n])) for n in self.data}
+            if k == 1:
+                first_r, first_v = dict(rnorm), dict(vnorm)
+            evals = [m.evaluate(rnorm[m.data], vnorm[m.data], first_r[m.data]) for m in self.measures]
+            itrec = IterationRecord(window=self.window, iteration=k, time=t, dt=dt,
+                                    residual_norms=rnorm, value_norms=vnorm,
+                                    measure_values=self._measure_values(evals, rnorm, vnorm),
+                                    measures=evals, solve_time=solve_time)
+            rec.records.append(itrec)
+            rec.iterations = k
+            status = self._status(k, evals, rnorm, vnorm, first_r, first_v)
+            if self.comm.Get_size() > 1:
+                status = self.comm.bcast(status, root=0)
+            if status == "explicit":
+                itrec.converged = True
+                rec.converged, rec.reason = True, "explicit"
+                self._print(format_progress(itrec, transient))
+                break
+            if status == "converged":
+                itrec.converged = True
+                rec.converged, rec.reason = True, "converged"
+                self.acceleration.window_converged(x, self.layout.concat(self.values))
+                rec.columns_dropped_at_end = self.acceleration.window_info.columns_dropped
+                rec.columns_kept = self.acceleration.columns[0].shape[1]
+                self._print(format_progress(itrec, transient))
+                break
+            if status.startswith("diverged"):
+                rec.reason = status
+                self._print(format_progress(itrec, transient) + "  DIVERGED")
+                return rec
+            if k == max_iterations:
+                rec.reason = "max_iterations"
+                self._print(format_progress(itrec, transient) + "  max iterations reached")
+                if self.config.on_max_iterations == "continue":
+                    self.acceleration.window_converged(x, self.layout.concat(self.values))
+                    rec.columns_dropped_at_end = self.acceleration.window_info.columns_dropped
+                    rec.columns_kept = self.acceleration.columns[0].shape[1]
+                return rec
+            x_tilde = self.layout.concat(self.values)
+            x_next = self.acceleration.compute(x, x_tilde)
+            if self.comm.Get_size() > 1:
+                x_next = np.ascontiguousarray(x_next, dtype=float)
+                self.comm.Bcast(x_next, root=0)
+            info = self.acceleration.info
+            itrec.relaxation = info.relaxation
+            itrec.columns_used = info.columns_used
+            itrec.columns_filtered = info.columns_filtered
+            itrec.columns_dropped = info.columns_dropped
+            self._print(format_progress(itrec, transient))
+            self.values.update(self.layout.split(x_next))
+            x = x_next
+        return rec
+
+    def _status(self, k: int, evals: list[MeasureValue], rnorm: dict[str, float],
+                vnorm: dict[str, float], first_r: dict[str, float],
+                first_v: dict[str, float]) -> str:
+        diverged = self._divergence(k, rnorm, vnorm, first_r, first_v)
+        if diverged is not None:
+            return "diverged: " + diverged
+        if not self.implicit:
+            return "explicit"
+        if k < self.config.min_iterations:
+            return "continue"
+        if self.layout.size == 0:
+            return "converged"  # no backward data: one sweep is exact
+        if all(m.met for m in evals) or any(m.met and m.suffices for m in evals):
+            return "converged"
+        return "continue"
+
+    def _finish_window(self, rec: WindowRecord, windows: list[WindowRecord]) -> bool:
+        """Book-keep a finished window; raise on failure; return False to stop the run."""
+        self.history.append(rec)
+        windows.append(rec)
+        if rec.reason.startswith("diverged"):
+            self.result = CouplingResult.from_windows(windows, list(self.data), reason=rec.reason)
+            raise CouplingDivergedError(self._diverged_message(rec, rec.reason[len("diverged: "):]),
+                                        self.result)
+        if not rec.converged:
+            policy = self.config.on_max_iterations
+            if policy == "raise":
+                self.result = CouplingResult.from_windows(windows, list(self.data))
+                raise CouplingNotConvergedError(self._not_converged_message(rec), self.result)
+            if policy == "return":
+                return False
+        return True
+
+    # ------------------------------------------------------------------ public drivers
+    def solve(self) -> CouplingResult:
+        """Iterate a steady problem to convergence (one window, no time level).
+
+        Returns:
+            The :class:`CouplingResult`.
+
+        Raises:
+            CouplingDivergedError: On NaN/Inf or residual growth.
+            CouplingNotConvergedError: If ``max_iterations`` are reached and
+                ``on_max_iterations = "raise"``.
+        """
+        windows: list[WindowRecord] = []
+        rec = self._run_window(None, None)
+        self.window += 1
+        self._finish_window(rec, windows)
+        self.result = CouplingResult.from_windows(windows, list(self.data))
+        return self.result
+
+    def run(self, t_end: float, dt: float) -> CouplingResult:
+        """Advance from :attr:`time` to ``t_end`` in windows of length ``dt``.
+
+        ``t_end - time`` must be a whole multiple of ``dt`` (relative
+        tolerance 1e-9).  Implicit schemes iterate every window to convergence
+        with checkpoint/restore of the participants' states.
+
+        Returns:
+            The :class:`CouplingResult` of the windows run in this call.
+
+        Raises:
+            ValueError: If ``dt`` or ``t_end`` are invalid.
+            CouplingDivergedError: On NaN/Inf or residual growth.
+            CouplingNotConvergedError: If a window reaches ``max_iterations`` and
+                ``on_max_iterations = "raise"``.
+        """
+        if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0.0):
+            raise ValueError(f"run: dt = {dt!r} must be a positive number")
+        span = float(t_end) - self.time
+        n = int(round(span / dt))
+        if n < 1 or abs(n * dt - span) > 1e-9 * max(abs(span), dt):
+            raise ValueError(f"run: t_end - time = {t_end} - {self.time} = {span} must be a positive "
+                             f"whole multiple of dt = {dt}")
+        windows: list[WindowRecord] = []
+        for _ in range(n):
+            t = self.time
+            rec = self._run_window(t, dt)
+            keep_going = self._finish_window(rec, windows)
+            if not keep_going:
+                break
+            self.time = t + dt
+            self.window += 1
+        self.result = CouplingResult.from_windows(windows, list(self.data))
+        return self.result
+
+    # ------------------------------------------------------------------ records
+    def write_records(self, directory: str | os.PathLike) -> dict[str, str]:
+        """Write the iterations and convergence logs (CSV and JSON) of :attr:`history`.
+
+        Only rank 0 writes; all ranks wait for it.  Returns the written paths.
+        """
+        paths: dict[str, str] = {}
+        if self._is_root():
+            paths = write_records(directory, self.history, list(self.data), list(self.order))
+        self.comm.Barrier()
+        return paths
+
+    # ------------------------------------------------------------------ restart
+    def save_checkpoint(self, path: str | os.PathLike, include_participants: bool = True) -> None:
+        """Save the coupling state so that a restarted run reproduces an uninterrupted one.
+
+        Saved: time and window index, the current value of every data, the
+        acceleration's complete state (columns, past windows, relaxation,
+        preconditioner weights, inverse Jacobian) and, if
+        ``include_participants``, each participant's ``save_state()`` on every
+        rank (states must consist of numpy arrays, numbers, strings, lists,
+        tuples and dicts; participants raising ``NotImplementedError`` are skipped).
+        Only rank 0 writes the ``.npz`` file.
+        """
+        participant_states: dict[str, Any] = {}
+        if include_participants:
+            for name in self.order:
+                try:
+                    state = self.participants[name].save_state()
+                except NotImplementedError:
+                    state = None
+                participant_states[name] = self.comm.gather(state, root=0)
+        state = {"format": _CHECKPOINT_FORMAT, "version": _CHECKPOINT_VERSION,
+                 "scheme": self.scheme_name, "time": self.time, "window": self.window,
+                 "ranks": self.comm.Get_size(), "data": list(self.data),
+                 "accelerated": list(self.accelerated),
+                 "values": {n: v.copy() for n, v in self.values.items()},
+                 "acceleration": self.acceleration.state_dict(),
+                 "participants": participant_states}
+        error: str | None = None
+        if self._is_root():
+            try:
+                save_npz(path, state)
+            except TypeError as exc:
+                error = (f"save_checkpoint: a participant state cannot be saved ({exc}); pass "
+                         f"include_participants=False and save participant states yourself")
+        if self.comm.Get_size() > 1:
+            error = self.comm.bcast(error, root=0)
+        self.comm.Barrier()
+        if error is not None:
+            raise TypeError(error)
+
+    def load_checkpoint(self, path: str | os.PathLike, include_participants: bool = True) -> None:
+        """Restore a state written by :meth:`save_checkpoint` (all ranks read the file).
+
+        Raises:
+            ValueError: If the checkpoint belongs to another scheme, other data
+                (names or shapes), another acceleration or another rank count.
+        """
+        state = load_npz(path)
+        if not isinstance(state, dict) or "format" not in state or state["format"] != _CHECKPOINT_FORMAT:
+            raise ValueError(f"{path}: not a coupling checkpoint")
+        if state["scheme"] != self.scheme_name:
+            raise ValueError(f"{path}: checkpoint of a {state['scheme']!r} scheme cannot be loaded "
+                             f"into a {self.scheme_name!r} scheme")
+        if list(state["data"]) != list(self.data) or list(state["accelerated"]) != list(self.accelerated):
+            raise ValueError(f"{path}: checkpoint data {state['data']} (accelerated "
+                             f"{state['accelerated']}) differ from this scheme's {list(self.data)} "
+                             f"(accelerated {list(self.accelerated)})")
+        values = {}
+        for name in self.data:
+            values[name] = self._as_data_array(name, state["values"][name], f"{path}")
+        self.acceleration.load_state_dict(state["acceleration"])
+        self.values = values
+        self.time = float(state["time"])
+        self.window = int(state["window"])
+        if include_participants and state["participants"]:
+            if int(state["ranks"]) != self.comm.Get_size():
+                raise ValueError(f"{path}: participant states were saved on {state['ranks']} ranks, "
+                                 f"now running on {self.comm.Get_size()}")
+            rank = self.comm.Get_rank()
+            for name, per_rank in state["participants"].items():
+                if name not in self.participants:
+                    raise ValueError(f"{path}: checkpoint has a state of unknown participant {name!r}")
+                if per_rank is not None and per_rank[rank] is not None:
+                    self.participants[name].load_state(per_rank[rank])
+
+
+class SerialImplicitScheme(CouplingScheme):
+    """Gauss–Seidel implicit coupling; the backward data are accelerated."""
+
+    scheme_name = "serial-implicit"
+    serial = True
+    implicit = True
+
+
+class ParallelImplicitScheme(CouplingScheme):
+    """Jacobi implicit coupling; all exchanged data are accelerated."""
+
+    scheme_name = "parallel-implicit"
+    serial = False
+    implicit = True
+
+
+class SerialExplicitScheme(CouplingScheme):
+    """Gauss–Seidel explicit coupling: one sweep per window, newest data."""
+
+    scheme_name = "serial-explicit"
+    serial = True
+    implicit = False
+
+
+class ParallelExplicitScheme(CouplingScheme):
+    """Jacobi explicit coupling: one sweep per window from the previous window's data."""
+
+    scheme_name = "parallel-explicit"
+    serial = False
+    implicit = False
+
+
+_SCHEMES: dict[str, type[CouplingScheme]] = {
+    cls.scheme_name: cls for cls in (SerialImplicitScheme, ParallelImplicitScheme,
+                                     SerialExplicitScheme, ParallelExplicitScheme)
+}
+
+
+def build_scheme(config: CouplingConfig | Mapping[str, Any],
+                 participants: Sequence[Participant] | Mapping[str, Participant],
+                 data: Sequence[Data], comm: Any = None,
+                 stream: TextIO | None = None) -> CouplingScheme:
+    """Create the scheme named by ``config.scheme``.
+
+    Args:
+        config: A :class:`CouplingConfig` or a ``[coupling]`` table (dict).
+        participants: The participants.
+        data: The coupling data.
+        comm: MPI communicator (default ``MPI.COMM_WORLD`` if available).
+        stream: Destination of the progress lines (default ``sys.stdout``).
+
+    Returns:
+        A :class:`CouplingScheme` subclass instance.
+
+    Example::
+
+        scheme = build_scheme({"scheme": "serial-implicit",
+                               "convergence": [{"type": "relative", "limit": 1e-8}],
+                               "acceleration": {"type": "iqn-ils"}},
+                              [fluid, gel], data)
+        result = scheme.solve()
+    """
+    cfg = load_config(config)
+    return _SCHEMES[cfg.scheme](cfg, participants, data, comm=comm, stream=stream)

@@ -1,0 +1,99 @@
+"""Save nested Python/numpy structures to one ``.npz`` file (no pickle).
+
+Arrays are stored as npz members; everything else (dicts with string keys,
+lists, tuples, numbers, strings, booleans, ``None``) as a JSON document in the
+member ``__meta__`` in which arrays appear as ``{"__array__": key}``.
+Loading uses ``allow_pickle=False``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Any
+
+import numpy as np
+
+__all__ = ["save_npz", "load_npz", "to_jsonable"]
+
+_META = "__meta__"
+
+
+def _encode(obj: Any, arrays: dict[str, np.ndarray], where: str) -> Any:
+    if isinstance(obj, np.ndarray):
+        if obj.dtype == object:
+            raise TypeError(f"{where}: object arrays cannot be saved")
+        key = f"a{len(arrays)}"
+        arrays[key] = obj
+        return {"__array__": key}
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        return float(obj)
+    if obj is None or isinstance(obj, str):
+        return obj
+    if isinstance(obj, dict):
+        items = []
+        for k, v in obj.items():
+            if not isinstance(k, str):
+                raise TypeError(f"{where}: dict keys must be strings, got {k!r}")
+            items.append([k, _encode(v, arrays, f"{where}[{k!r}]")])
+        return {"__dict__": items}
+    if isinstance(obj, tuple):
+        return {"__tuple__": [_encode(v, arrays, f"{where}[{i}]") for i, v in enumerate(obj)]}
+    if isinstance(obj, list):
+        return [_encode(v, arrays, f"{where}[{i}]") for i, v in enumerate(obj)]
+    raise TypeError(f"{where}: cannot save an object of type {type(obj).__name__} (allowed: numpy "
+                    f"arrays, dicts with string keys, lists, tuples, numbers, strings, None)")
+
+
+def _decode(obj: Any, arrays: Any) -> Any:
+    if isinstance(obj, list):
+        return [_decode(v, arrays) for v in obj]
+    if isinstance(obj, dict):
+        if "__array__" in obj:
+            return np.array(arrays[obj["__array__"]])
+        if "__tuple__" in obj:
+            return tuple(_decode(v, arrays) for v in obj["__tuple__"])
+        if "__dict__" in obj:
+            return {k: _decode(v, arrays) for k, v in obj["__dict__"]}
+        raise ValueError(f"corrupt npz metadata entry {obj!r}")
+    return obj
+
+
+def save_npz(path: str | os.PathLike, obj: Any) -> None:
+    """Write ``obj`` to ``path`` (exactly that name; no suffix is added)."""
+    arrays: dict[str, np.ndarray] = {}
+    meta = _encode(obj, arrays, "state")
+    with open(os.fspath(path), "wb") as fh:
+        np.savez(fh, **{_META: np.array(json.dumps(meta))}, **arrays)
+
+
+def load_npz(path: str | os.PathLike) -> Any:
+    """Read an object written by :func:`save_npz`."""
+    with np.load(os.fspath(path), allow_pickle=False) as archive:
+        if _META not in archive.files:
+            raise ValueError(f"{path}: not a coupling npz file (no {_META} member)")
+        meta = json.loads(str(archive[_META]))
+        arrays = {name: archive[name] for name in archive.files if name != _META}
+    return _decode(meta, arrays)
+
+
+def to_jsonable(obj: Any) -> Any:
+    """Convert numpy scalars/arrays to Python and NaN/Inf to ``None`` for strict JSON."""
+    if isinstance(obj, dict):
+        return {str(k): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return to_jsonable(obj.tolist())
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        value = float(obj)
+        return value if np.isfinite(value) else None
+    return obj

@@ -1,0 +1,173 @@
+"""Time-dependent coupling: checkpoint/restore, reuse of past windows, restart."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import coupling as cp
+from coupling.toys import transient_problem
+
+
+def build(problem, acceleration, scheme="serial-implicit", **options):
+    participants, data = problem.build()
+    config = {"scheme": scheme, "order": list(problem.order), "verbose": False,
+              "max_iterations": 100, "convergence": [{"type": "relative", "limit": 1e-12}],
+              "acceleration": acceleration, **options}
+    return cp.build_scheme(config, participants, data), participants
+
+
+ACCELERATIONS = [
+    {"type": "iqn-ils", "initial_relaxation": 0.1, "time_windows_reused": 4},
+    {"type": "iqn-imvj", "initial_relaxation": 0.1},
+    {"type": "aitken", "initial_relaxation": 0.1},
+]
+
+
+@pytest.mark.parametrize("scheme_name", ["serial-implicit", "parallel-implicit"])
+@pytest.mark.parametrize("acceleration", ACCELERATIONS, ids=lambda a: a["type"])
+def test_windows_match_the_monolithic_solution(scheme_name, acceleration):
+    if scheme_name == "parallel-implicit" and acceleration["type"] == "aitken":
+        pytest.skip("Aitken does not converge on this Jacobi map")
+    problem = transient_problem()
+    scheme, _ = build(problem, acceleration, scheme_name)
+    t_end, dt = problem.transient
+    result = scheme.run(t_end=t_end, dt=dt)
+    assert result.converged and len(result.windows) == 10
+    assert scheme.time == pytest.approx(t_end)
+    # converged to ‖r‖/‖x̃‖ < 1e-12 in every window; errors accumulate over 10 windows
+    for name, value in problem.exact.items():
+        np.testing.assert_allclose(scheme.latest(name), value, rtol=1e-9, err_msg=name)
+
+
+class NoRestore(cp.toys.LinearOdeParticipant):
+    """A participant whose load_state forgets to restore (a classic adapter bug)."""
+
+    def load_state(self, state):
+        pass
+
+
+def test_without_restore_the_coupling_fails():
+    problem = transient_problem()
+    participants, data = problem.build()
+    a = participants[0]
+    broken = NoRestore(a.name, a.mesh, a.read, a.write, a.stiffness, a.coupling, a.source, a.u0)
+    scheme = cp.build_scheme({"order": ["A", "B"], "verbose": False, "max_iterations": 100,
+                              "convergence": [{"type": "relative", "limit": 1e-12}],
+                              "acceleration": {"type": "iqn-ils", "initial_relaxation": 0.1}},
+                             [broken, participants[1]], data)
+    try:
+        scheme.run(*problem.transient)
+    except (cp.CouplingNotConvergedError, cp.CouplingDivergedError):
+        return  # the iteration chases a moving target: no convergence
+    error = np.linalg.norm(scheme.latest("Gamma/a") - problem.exact["Gamma/a"])
+    assert error > 1e-3 * np.linalg.norm(problem.exact["Gamma/a"])
+
+
+def test_reuse_of_past_windows_lowers_the_iteration_count():
+    problem = transient_problem(windows=20, variation=0.1)
+    counts = {}
+    for label, acceleration in {
+        "no reuse": {"type": "iqn-ils", "initial_relaxation": 0.1, "time_windows_reused": 0},
+        "reuse 8": {"type": "iqn-ils", "initial_relaxation": 0.1, "time_windows_reused": 8},
+        "imvj": {"type": "iqn-imvj", "initial_relaxation": 0.1},
+    }.items():
+        scheme, _ = build(problem, acceleration, convergence=[{"type": "relative", "limit": 1e-10,
+                                                               "data": "Gamma/b"}])
+        result = scheme.run(*problem.transient)
+        counts[label] = np.mean(result.iterations_per_window[1:])
+    assert counts["reuse 8"] < 0.8 * counts["no reuse"], counts
+    assert counts["imvj"] < 0.8 * counts["no reuse"], counts
+
+
+@pytest.mark.parametrize("scheme_name", ["serial-implicit", "parallel-implicit"])
+@pytest.mark.parametrize("acceleration", [
+    {"type": "iqn-ils", "initial_relaxation": 0.1, "time_windows_reused": 3,
+     "preconditioner": {"type": "residual-sum"}},
+    {"type": "iqn-imvj", "initial_relaxation": 0.1, "preconditioner": {"type": "value", "freeze_after": 4}},
+    {"type": "aitken", "initial_relaxation": 0.1},
+], ids=lambda a: a["type"])
+def test_restart_reproduces_the_uninterrupted_run(scheme_name, acceleration, shared_tmp_path):
+    if scheme_name == "parallel-implicit" and acceleration["type"] == "aitken":
+        pytest.skip("Aitken does not converge on this Jacobi map")
+    problem = transient_problem(windows=8)
+    dt = problem.transient[1]
+    n_total, n_first = 8, 3
+    full, _ = build(problem, acceleration, scheme_name)
+    full_result = full.run(t_end=n_total * dt, dt=dt)
+
+    first, _ = build(problem, acceleration, scheme_name)
+    first_result = first.run(t_end=n_first * dt, dt=dt)
+    path = shared_tmp_path / "restart.npz"
+    first.save_checkpoint(path)
+
+    second, _ = build(problem, acceleration, scheme_name)  # fresh participants at t = 0
+    second.load_checkpoint(path)
+    assert second.time == first.time and second.window == n_first
+    second_result = second.run(t_end=n_total * dt, dt=dt)
+
+    assert first_result.iterations_per_window + second_result.iterations_per_window == \
+        full_result.iterations_per_window
+    for name in full.data:
+        np.testing.assert_allclose(second.latest(name), full.latest(name), rtol=1e-12, atol=0.0)
+    assert [w.time for w in second_result.windows] == [w.time for w in full_result.windows[n_first:]]
+
+
+def test_checkpoint_of_another_scheme_is_rejected(shared_tmp_path):
+    problem = transient_problem(windows=2)
+    scheme, _ = build(problem, {"type": "iqn-ils"})
+    scheme.run(*problem.transient)
+    path = shared_tmp_path / "serial.npz"
+    scheme.save_checkpoint(path)
+    other, _ = build(problem, {"type": "iqn-ils"}, "parallel-implicit")
+    with pytest.raises(ValueError, match="checkpoint of a 'serial-implicit' scheme cannot be loaded"):
+        other.load_checkpoint(path)
+    aitken, _ = build(problem, {"type": "aitken"})
+    with pytest.raises(ValueError, match="acceleration state of type 'iqn-ils' cannot be loaded"):
+        aitken.load_checkpoint(path)
+
+
+class Stateless(cp.toys.LinearOdeParticipant):
+    def save_state(self):
+        raise NotImplementedError("no state")
+
+
+def test_explicit_runs_need_no_checkpoint_and_implicit_ones_say_so():
+    problem = transient_problem(windows=3, coupling=2.0)
+    participants, data = problem.build()
+    a = participants[0]
+    stateless = Stateless(a.name, a.mesh, a.read, a.write, a.stiffness, a.coupling, a.source, a.u0)
+    explicit = cp.build_scheme({"scheme": "serial-explicit", "verbose": False},
+                               [stateless, participants[1]], data)
+    result = explicit.run(*problem.transient)
+    assert result.iterations_per_window == [1, 1, 1] and result.converged
+    implicit = cp.build_scheme({"verbose": False, "convergence": [{"type": "relative", "limit": 1e-8}]},
+                               [stateless, participants[1]], data)
+    with pytest.raises(TypeError, match=r"participant 'A' must implement save_state\(\)"):
+        implicit.run(*problem.transient)
+
+
+def test_on_max_iterations_continue_runs_every_window():
+    problem = transient_problem(windows=4)
+    scheme, _ = build(problem, {"type": "iqn-ils"}, max_iterations=3, on_max_iterations="continue")
+    result = scheme.run(*problem.transient)
+    assert len(result.windows) == 4 and not result.converged
+    assert result.iterations_per_window == [3, 3, 3, 3] and result.reason == "max_iterations"
+    assert scheme.time == pytest.approx(problem.transient[0])
+
+
+def test_run_rejects_a_window_that_does_not_divide_the_interval():
+    problem = transient_problem(windows=2)
+    scheme, _ = build(problem, {"type": "iqn-ils"})
+    with pytest.raises(ValueError, match="must be a positive whole multiple of dt"):
+        scheme.run(t_end=0.25, dt=0.1)
+
+
+def test_replay_restores_the_window_checkpoint():
+    problem = transient_problem(windows=3)
+    scheme, participants = build(problem, {"type": "iqn-ils", "initial_relaxation": 0.1},
+                                 record_data=True)
+    scheme.run(*problem.transient)
+    fresh, _ = problem.build()
+    out = cp.replay(fresh[0], scheme.recording, iteration=3, window=1)
+    assert max(out.max_abs_difference.values()) <= 1e-12 * np.abs(out.recorded_outputs["Gamma/a"]).max()
