@@ -157,6 +157,67 @@ def cmd_mesh(args: argparse.Namespace) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- run
+SCHEMES = ("serial", "parallel")
+ACCELERATIONS = ("none", "constant", "aitken", "iqn-ils", "iqn-imvj")
+
+
+def _add_solver_arguments(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("solver options")
+    g.add_argument("--scheme", choices=SCHEMES, default="serial",
+                   help="coupling scheme: serial (Gauss-Seidel: fluid, gel, cell) or parallel (Jacobi)")
+    g.add_argument("--acceleration", choices=ACCELERATIONS, default="iqn-ils",
+                   help="coupling acceleration (default iqn-ils)")
+    g.add_argument("--monolithic", action="store_true",
+                   help="solve the monolithic reference (all fields in one Newton system) instead")
+    g.add_argument("--quiet", action="store_true", help="no per-iteration coupling progress")
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    params = case_parameters_from_args(args)         # validated before any meshing
+    from gelcell.results import gamma_profiles
+    from gelcell.runner import report, run_case, solve_partitioned
+    comm = MPI.COMM_WORLD
+    overlay, extra = None, {}
+    if args.compare_no_cell and params.with_cell:
+        if comm.rank == 0:
+            print("gelcell: first the same case without the cell, for the profile comparison")
+        ref = solve_partitioned(params.replace(with_cell=False), args.scheme, args.acceleration, comm=comm,
+                                verbose=not args.quiet, checks=False)
+        overlay = gamma_profiles(ref.fields, "Gamma1")
+        extra["summary_no_cell.json"] = report(ref.summary, params.replace(with_cell=False))
+    run_case(params, args.out, monolithic=args.monolithic, scheme=args.scheme, acceleration=args.acceleration,
+             comm=comm, verbose=not args.quiet, figures=not args.no_figures, overlay_profiles=overlay,
+             extra_json=extra)
+    return 0
+
+
+# --------------------------------------------------------------------------- sweep
+SWEEPS = ("ca", "cell-moduli", "gel-moduli", "e")
+
+
+def sweep_parameters(params: CaseParameters, name: str, value: float) -> CaseParameters:
+    """The case with one swept parameter set (model.md section 5)."""
+    if name == "ca":
+        return params.with_ca(value)
+    if name == "cell-moduli":
+        return params.with_cell_moduli(value)
+    if name == "gel-moduli":
+        return params.with_gel_moduli(value)
+    if name == "e":
+        return params.with_e(value)
+    raise ParameterError(f"--param must be one of {', '.join(SWEEPS)}, got {name!r}")
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    base = case_parameters_from_args(args)
+    cases = [sweep_parameters(base, args.param, v) for v in args.values]   # validate all first
+    from gelcell.sweep import run_sweep
+    run_sweep(cases, args.param, args.values, args.out, monolithic=args.monolithic, scheme=args.scheme,
+              acceleration=args.acceleration, verbose=not args.quiet)
+    return 0
+
+
 # --------------------------------------------------------------------------- main
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="gelcell", description=DESCRIPTION, epilog=EPILOG,
@@ -174,6 +235,36 @@ def build_parser() -> argparse.ArgumentParser:
     add_case_arguments(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (replaced)")
     p.set_defaults(func=cmd_mesh)
+
+    p = sub.add_parser("run", help="solve one case (partitioned or monolithic) and write its results",
+                       description="Solve a device case: the partitioned fluid-gel-cell coupling (default) or "
+                                   "the monolithic reference (--monolithic).  Prints the coupling progress "
+                                   "and a table of results, and writes into DIR: summary.json (every "
+                                   "quantity, dimensionless and SI), fluid.xdmf/gel.xdmf/cell.xdmf (fields "
+                                   "for ParaView), gamma1_profiles.h5/.csv, coupling/ (iteration and "
+                                   "convergence logs) and PNG figures.  DIR is replaced only when "
+                                   "everything has been written.")
+    add_case_arguments(p)
+    _add_solver_arguments(p)
+    p.add_argument("--compare-no-cell", action="store_true",
+                   help="also solve the case without the cell and overlay its Gamma1 profiles")
+    p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    p.add_argument("--out", required=True, metavar="DIR", help="output directory (replaced)")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("sweep", help="run a case for several values of one parameter",
+                       description="Run one case per value of --param and write sweep.csv and sweep.json "
+                                   "(the summary quantities per value), sweep.png (each quantity against "
+                                   "the parameter) and one summary per run into DIR.  The gel-moduli sweep "
+                                   "keeps the dimensional flow speed and the cell moduli in Pa fixed, so Ca "
+                                   "and mu_c/mu_s change with it (model.md section 5).")
+    add_case_arguments(p)
+    _add_solver_arguments(p)
+    p.add_argument("--param", required=True, choices=SWEEPS, help="the swept parameter")
+    p.add_argument("--values", required=True, nargs="+", type=_number, metavar="V",
+                   help="values of the parameter (Ca; multiples of the cell or gel moduli; e in L0)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output directory (replaced)")
+    p.set_defaults(func=cmd_sweep)
     return parser
 
 

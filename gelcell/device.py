@@ -1,0 +1,286 @@
+"""The composition layer: one device case as three coupled participants.
+
+This is the only module that knows both the field solvers and the coupling
+library.  It builds the meshes, the three solvers with the case's boundary
+conditions, wraps each solver as a coupling participant, and declares the
+data they exchange.
+
+Partitioning (derivation in docs/partitioning.md).  On Gamma1/Gamma3 the gel
+enforces I14 (both components), I15 and I17 given the fluid's traction T and
+velocity V; the fluid enforces I16 and a Robin form of I13,
+
+    T_F.n - alpha_n V.n = T_G.n - alpha_n q_G            (normal, alpha_n > 0)
+    Ca (V - v_f).t = beta (Sigma n).t                    (tangential, I16)
+
+with T_G the gel's total traction and q_G = phi_f v_f.n the gel's normal flux
+(n out of the gel).  At convergence T_G = T_F (the gel enforces I14), so the
+Robin condition reduces to I13, and neither enclosed domain (the upstream
+fluid of the normal-flow device, the gel chamber of the shear device) ever
+receives a Dirichlet normal velocity.  On Gamma2 the cell takes the gel's
+displacement (Dirichlet) and returns its consistent nodal reaction; the gel
+takes the opposite nodal forces (Neumann) and v_f = 0.
+
+Data (per fluid interface G in Gamma1, Gamma3, all on matching nodes):
+
+    G/traction               fluid -> gel   T_F, the fluid's traction on the gel
+    G/velocity               fluid -> gel   V
+    G/gel_traction           gel -> fluid   T_G (total traction the gel applies)
+    G/superficial_velocity   gel -> fluid   phi_f v_f (normal part = flux q_G)
+    G/interstitial_velocity  gel -> fluid   v_f (tangential part enters I16)
+    Gamma2/displacement      gel -> cell    u_s
+    Gamma2/force             cell -> gel    nodal force of the cell on the gel
+
+Units inside the solvers: velocity V0, length L0, stress Ca mu_s (= mu V0/L0),
+displacement Ca L0 (CaseParameters.stress_scale / displacement_scale).
+"""
+
+from __future__ import annotations
+
+import time
+import typing
+
+import numpy as np
+
+from mpi4py import MPI
+
+import coupling as cp
+from cell import NeoHookeanCellSolver
+from fluid import FluidInterface, StokesSolver
+from gel import GelParameters, PoroelasticGelSolver
+from gelcell.boundaries import DeviceBoundaries, device_boundaries
+from gelcell.geometry import build_device
+from gelcell.parameters import CaseParameters
+
+__all__ = ["Device", "FluidParticipant", "GelParticipant", "CellParticipant", "coupling_data",
+           "default_robin_coefficient", "coupling_config"]
+
+FLUID_TO_GEL = ("traction", "velocity")
+GEL_TO_FLUID = ("gel_traction", "superficial_velocity", "interstitial_velocity")
+
+
+def default_robin_coefficient(params: CaseParameters) -> float:
+    """alpha_n = C (Ca/s) xi phi_s0 l / phi_f0: C times the gel's Darcy resistance over a depth l.
+
+    l is the gel's extent normal to Gamma1: the gel layer in the normal-flow
+    device, the chamber depth in the shear device.
+
+    * Normal flow (C = 1): the upstream fluid is enclosed, so the Robin
+      coefficient must stay finite; matching the gel's impedance of its
+      slowest (uniform) mode makes the Robin-Neumann iteration contract for
+      every mode (docs/partitioning.md).
+    * Shear flow (C = 10): the fluid is not enclosed, but the gel chamber is,
+      so its slowest modes carry no net flux and have a far larger impedance
+      than the Darcy estimate; a coefficient towards the Dirichlet limit
+      suits them (measured: IQN-ILS iterations stop dropping beyond C ~ 10,
+      see the coupling study).
+    """
+    g, ph = params.geometry, params.physics
+    if params.case == "shear":
+        depth, factor = g.radius * (1.0 - np.cos(g.half_angle)), 10.0
+    else:
+        depth, factor = g.gel_length, 1.0
+    viscosity = ph.ca / params.stress_scale
+    return float(factor * viscosity * ph.xi * ph.phi_s0 * depth / (1.0 - ph.phi_s0))
+
+
+def coupling_data(boundaries: DeviceBoundaries) -> list[cp.Data]:
+    """The coupling data of a device (see the module docstring)."""
+    data = []
+    for g in boundaries.fluid_interfaces:
+        data += [cp.Data(f"{g}/{k}", mesh=g, dim=2, writer="fluid", readers=("gel",)) for k in FLUID_TO_GEL]
+        data += [cp.Data(f"{g}/{k}", mesh=g, dim=2, writer="gel", readers=("fluid",)) for k in GEL_TO_FLUID]
+    for g in boundaries.cell_interfaces:
+        data += [cp.Data(f"{g}/displacement", mesh=g, dim=2, writer="gel", readers=("cell",)),
+                 cp.Data(f"{g}/force", mesh=g, dim=2, writer="cell", readers=("gel",))]
+    return data
+
+
+def coupling_config(scheme: str = "serial", acceleration: str = "iqn-ils", *, limit: float = 1e-10,
+                    max_iterations: int = 200, with_cell: bool = True,
+                    overrides: typing.Mapping | None = None) -> dict:
+    """A ``[coupling]`` table for a device run (TOML overrides are merged on top).
+
+    Convergence: every exchanged data to a relative residual ``limit``.
+    """
+    order = ["fluid", "gel", "cell"] if with_cell else ["fluid", "gel"]
+    acc: dict[str, typing.Any] = {"type": acceleration}
+    if acceleration == "constant":
+        acc["relaxation"] = 0.5
+    elif acceleration == "aitken":
+        acc["initial_relaxation"] = 0.5
+    elif acceleration in ("iqn-ils", "iqn-imvj"):
+        acc.update(initial_relaxation=0.5, max_used_iterations=100,
+                   filter={"type": "qr2", "limit": 1e-3},
+                   preconditioner={"type": "residual-sum"})
+    config = {"scheme": f"{scheme}-implicit" if scheme in ("serial", "parallel") else scheme,
+              "order": order, "max_iterations": max_iterations, "acceleration": acc,
+              "convergence": [{"type": "relative", "limit": limit, "data": "*"}]}
+    for key, value in (overrides or {}).items():
+        if key == "acceleration" and isinstance(value, typing.Mapping):
+            if value.get("type", acc["type"]) != acc["type"]:
+                config["acceleration"] = dict(value)
+            else:
+                config["acceleration"] = {**acc, **value}
+        else:
+            config[key] = value
+    return config
+
+
+class FluidParticipant(cp.Participant):
+    """The Stokes solver seen by the coupling: Robin I13 + I16 on Gamma1/Gamma3.
+
+    Fluid convention: t = (Sigma - P I) n_F is the traction ON the fluid, n_F
+    its outward normal (= -n).  The model's conditions become
+
+        t.n_F + alpha_n V.n_F = g_N.n_F,   g_N = -T_G + alpha_n phi_f v_f
+        t_tau + alpha_t V_tau = g_T,tau,   g_T = alpha_t v_f,  alpha_t = (Ca/s)/beta
+
+    and the fluid's traction on the gel is T_F = -t.
+    """
+
+    name = "fluid"
+
+    def __init__(self, solver: StokesSolver, interfaces: typing.Iterable[str], alpha_n: float,
+                 alpha_t: float):
+        self.solver, self.interfaces = solver, list(interfaces)
+        self.alpha_n, self.alpha_t = float(alpha_n), float(alpha_t)
+
+    def interface_points(self, mesh_name: str) -> np.ndarray:
+        return self.solver.interface_points(mesh_name)
+
+    def solve(self, inputs):
+        for g in self.interfaces:
+            T_G = inputs[f"{g}/gel_traction"]
+            q = inputs[f"{g}/superficial_velocity"]
+            v_f = inputs[f"{g}/interstitial_velocity"]
+            self.solver.set_interface_data(g, robin_normal=-T_G + self.alpha_n * q,
+                                           robin_tangential=self.alpha_t * v_f)
+        self.solver.solve()
+        out = {}
+        for g in self.interfaces:
+            d = self.solver.interface_data(g)
+            out[f"{g}/traction"] = -d["traction"]
+            out[f"{g}/velocity"] = d["velocity"]
+        return out
+
+
+class GelParticipant(cp.Participant):
+    """The gel solver seen by the coupling: I14, I15, I17 on Gamma1/Gamma3, Neumann on Gamma2."""
+
+    name = "gel"
+
+    def __init__(self, solver: PoroelasticGelSolver, fluid_interfaces: typing.Iterable[str],
+                 cell_interfaces: typing.Iterable[str]):
+        self.solver = solver
+        self.fluid_interfaces, self.cell_interfaces = list(fluid_interfaces), list(cell_interfaces)
+
+    def interface_points(self, mesh_name: str) -> np.ndarray:
+        return self.solver.interface_points(mesh_name)
+
+    def solve(self, inputs):
+        for g in self.fluid_interfaces:
+            self.solver.set_interface_data(g, traction=inputs[f"{g}/traction"],
+                                           velocity=inputs[f"{g}/velocity"])
+        for g in self.cell_interfaces:
+            self.solver.set_interface_data(g, force=inputs[f"{g}/force"])
+        self.solver.solve()
+        out = {}
+        for g in self.fluid_interfaces:
+            d = self.solver.interface_data(g)
+            out[f"{g}/gel_traction"] = d["traction"]
+            out[f"{g}/superficial_velocity"] = d["superficial_velocity"]
+            out[f"{g}/interstitial_velocity"] = d["interstitial_velocity"]
+        for g in self.cell_interfaces:
+            out[f"{g}/displacement"] = self.solver.interface_data(g)["displacement"]
+        return out
+
+
+class CellParticipant(cp.Participant):
+    """The cell solver seen by the coupling: Dirichlet on Gamma2, returns the force on the gel."""
+
+    name = "cell"
+
+    def __init__(self, solver: NeoHookeanCellSolver, interfaces: typing.Iterable[str]):
+        self.solver, self.interfaces = solver, list(interfaces)
+
+    def interface_points(self, mesh_name: str) -> np.ndarray:
+        return self.solver.interface_points(mesh_name)
+
+    def solve(self, inputs):
+        for g in self.interfaces:
+            self.solver.set_interface_data(g, displacement=inputs[f"{g}/displacement"])
+        self.solver.solve()
+        # the cell's reaction is the force ON the cell; the gel feels the opposite
+        return {f"{g}/force": -self.solver.interface_data(g)["force"] for g in self.interfaces}
+
+
+class Device:
+    """A device case: meshes, the three field solvers and their coupling.
+
+    Args:
+        params: the case (geometry, parameters, mesh sizes).
+        comm: MPI communicator.
+        robin_coefficient: alpha_n in the solvers' stress unit per unit
+            velocity; default :func:`default_robin_coefficient`.
+        whole_mesh: also build the whole-device mesh (for the monolithic
+            reference and field comparisons).
+    """
+
+    def __init__(self, params: CaseParameters, comm: MPI.Comm = MPI.COMM_WORLD,
+                 robin_coefficient: float | None = None, whole_mesh: bool = False,
+                 newton_rtol: float = 1e-12):
+        t0 = time.perf_counter()
+        params.validate()
+        self.params, self.comm = params, comm
+        self.mesh = build_device(params, comm, whole=whole_mesh)
+        g = params.geometry
+        self.boundaries = device_boundaries(params.case, params.with_cell,
+                                            getattr(g, "channel_height", 0.2))
+        b, ph = self.boundaries, params.physics
+        s, d = params.stress_scale, params.displacement_scale
+        viscosity = ph.ca / s
+        self.alpha_n = default_robin_coefficient(params) if robin_coefficient is None else robin_coefficient
+        self.alpha_t = viscosity / ph.beta
+        if not self.alpha_n > 0:
+            raise ValueError(f"robin_coefficient = {self.alpha_n} must be > 0")
+        self.mesh_time = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        fluid_mesh, fluid_tags = self.mesh.region("fluid")
+        self.fluid = StokesSolver(
+            fluid_mesh, fluid_tags, viscosity=viscosity, velocity_bcs=b.fluid_velocity,
+            component_bcs=b.fluid_component,
+            interfaces={name: FluidInterface(tag, "robin", "robin", self.alpha_n, self.alpha_t)
+                        for name, tag in b.fluid_interfaces.items()})
+        gel_mesh, gel_tags = self.mesh.region("gel")
+        self.gel_parameters = GelParameters(phi_s0=ph.phi_s0, xi=ph.xi, lambda_s=ph.lambda_s,
+                                            beta=ph.beta, eta=ph.eta, Ca=ph.ca, stress_scale=s,
+                                            displacement_scale=d)
+        self.gel = PoroelasticGelSolver(
+            gel_mesh, gel_tags, self.gel_parameters, no_slip=b.gel_no_slip, symmetry=b.gel_symmetry,
+            fluid_interfaces=b.fluid_interfaces, cell_interfaces=b.cell_interfaces,
+            newton_rtol=newton_rtol)
+        self.cell = None
+        if params.with_cell:
+            cell_mesh, cell_tags = self.mesh.region("cell")
+            self.cell = NeoHookeanCellSolver(
+                cell_mesh, cell_tags, mu=params.mu_c, lmbda=params.lambda_c, stress_scale=s,
+                displacement_scale=d, interfaces=b.cell_interfaces, symmetry=b.cell_symmetry,
+                newton_rtol=newton_rtol)
+        self.setup_time = time.perf_counter() - t0
+        self.participants = [FluidParticipant(self.fluid, b.fluid_interfaces, self.alpha_n, self.alpha_t),
+                             GelParticipant(self.gel, b.fluid_interfaces, b.cell_interfaces)]
+        if self.cell is not None:
+            self.participants.append(CellParticipant(self.cell, b.cell_interfaces))
+        self.data = coupling_data(b)
+        self.scheme: cp.CouplingScheme | None = None
+        self.result: cp.CouplingResult | None = None
+
+    def solve(self, config: typing.Mapping | None = None, verbose: bool = True,
+              record_data: bool = False) -> cp.CouplingResult:
+        """Run the partitioned coupling to convergence (steady state)."""
+        config = dict(config or coupling_config(with_cell=self.cell is not None))
+        config.setdefault("verbose", verbose)
+        config.setdefault("record_data", record_data)
+        self.scheme = cp.build_scheme(config, self.participants, self.data, comm=self.comm)
+        self.result = self.scheme.solve()
+        return self.result

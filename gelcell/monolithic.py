@@ -1,0 +1,238 @@
+"""Monolithic reference: every field and every interface condition in ONE system.
+
+One mesh of the whole device carries all unknowns
+
+    V, P    fluid velocity and pressure            (P2^2, P1)   active on the fluid
+    v_f, p  interstitial velocity, pore pressure   (P2^2, P1)   active on the gel
+    u       network displacement in the gel and
+            cell displacement in the cell          (P2^2)       active on gel + cell
+    lam     the fluid's traction on the gel on
+            Gamma1/Gamma3 (a Lagrange multiplier)  (P2^2)       active on Gamma1/Gamma3
+
+each integrated only over its own subdomain; the dofs of a field outside
+its subdomain have no equation and are left out of the linear solves
+(they stay zero).  The residual is
+
+    fluid:   bulk Stokes residual on the fluid + int lam . v dS
+             (the force on the fluid is -lam)
+    gel:     bulk gel residual on the gel + the gel's interface terms of
+             gel.forms.fluid_interface_residual with T = lam (I14, I15, I17)
+    cell:    total Lagrangian neo-Hookean residual on the cell, tested with
+             the same displacement test function as the gel's mixture balance,
+             so that u_s = u_c and the traction balance on Gamma2 hold exactly
+    lam:     int (V.n - phi_f v_f.n) (mu.n) + (lam - (Ca/beta)(V - v_f))_tau . mu_tau dS
+             i.e. I13 and I16, tested with the multiplier's test function mu
+
+Gel-side quantities on the interior facets of Gamma1/Gamma3 (phi_s from
+grad u, the gel's outward normal) are selected with a gel indicator, never
+with the '+'/'-' side, which changes with the partition.  Multiplier
+components at nodes where the fluid velocity is fixed by an outer boundary
+(the ends of Gamma1 on a wall or a symmetry line) are pinned to zero, as the
+partitioned fluid solver does when it recovers its consistent traction.
+
+The system is solved by Newton's method with the exact Jacobian.  It reuses
+only the constitutive laws and bulk forms of fluid/gel/cell, not the
+coupling loop.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from mpi4py import MPI
+
+import ufl
+from dolfinx import fem
+
+import cell.forms as cell_forms
+import fluid.forms as fluid_forms
+import gel.forms as gel_forms
+from femtools.functions import quadrature_measure
+from femtools.linalg import NewtonSolver
+from gelcell.boundaries import DeviceBoundaries
+from gelcell.geometry import Tag
+
+__all__ = ["MonolithicCoefficients", "MonolithicSolver"]
+
+FIELDS = ("V", "P", "v_f", "u", "p", "lam")
+
+
+@dataclasses.dataclass
+class MonolithicCoefficients:
+    """Numbers of the coupled problem in the solver's units (see gel.forms)."""
+
+    phi_s0: float
+    xi: float
+    lambda_s: float
+    beta: float
+    eta: float
+    Ca: float
+    mu_c: float
+    lambda_c: float
+    stress_scale: float
+    displacement_scale: float
+
+
+class MonolithicSolver:
+    """All fields of a device on one mesh, solved at once by Newton's method.
+
+    Args:
+        msh, cell_tags, facet_tags: the whole device (regions tagged
+            Tag.FLUID, Tag.GEL, Tag.CELL).
+        boundaries: the case's boundary conditions.
+        coefficients: parameter values.
+    """
+
+    def __init__(self, msh, cell_tags, facet_tags, boundaries: DeviceBoundaries,
+                 coefficients: MonolithicCoefficients, quadrature_degree: int = 4,
+                 newton_rtol: float = 1e-12, petsc_options: dict | None = None):
+        t0 = time.perf_counter()
+        self.mesh, self.cell_tags, self.facet_tags = msh, cell_tags, facet_tags
+        self.boundaries, self.coefficients = boundaries, coefficients
+        tdim = msh.topology.dim
+        msh.topology.create_connectivity(tdim - 1, tdim)
+        P2 = ufl.VectorElement("Lagrange", msh.ufl_cell(), 2)
+        P1 = ufl.FiniteElement("Lagrange", msh.ufl_cell(), 1)
+        self.W = fem.FunctionSpace(msh, ufl.MixedElement([P2, P1, P2, P2, P1, P2]))
+        self.w = fem.Function(self.W, name="monolithic")
+        self.has_cell = len(boundaries.cell_interfaces) > 0
+        F = self._residual(quadrature_degree)
+        self.bcs = self._boundary_conditions()
+        self.newton = NewtonSolver(F, self.w, self.bcs, name="monolithic", rtol=newton_rtol,
+                                   reuse="never", max_it=20, petsc_options=petsc_options,
+                                   active_dofs=self.active_dofs())
+        self.setup_time = time.perf_counter() - t0
+        self.solve_time = 0.0
+
+    # -- forms ----------------------------------------------------------------
+    def _constants(self):
+        c, msh = self.coefficients, self.mesh
+        const = lambda v: fem.Constant(msh, float(v))  # noqa: E731
+        s, d = c.stress_scale, c.displacement_scale
+        self.gel_coefficients = gel_forms.GelCoefficients(
+            phi_s0=const(c.phi_s0), xi=const(c.xi), lambda_s=const(c.lambda_s), beta=const(c.beta),
+            eta=const(c.eta), viscosity=const(c.Ca / s), stiffness=const(d / s), d=const(d))
+        self.cell_moduli = (const(c.mu_c), const(c.lambda_c), const(d), const(s))
+        return self.gel_coefficients
+
+    def _gel_indicator(self) -> fem.Function:
+        Q0 = fem.FunctionSpace(self.mesh, ("DG", 0))
+        chi = fem.Function(Q0)
+        chi.x.array[self.cell_tags.find(int(Tag.GEL))] = 1.0
+        chi.x.scatter_forward()
+        return chi
+
+    def _residual(self, degree: int):
+        msh = self.mesh
+        c = self._constants()
+        V, P, v_f, u, p, lam = ufl.split(self.w)
+        v, q, w, z, q_g, mu = ufl.TestFunctions(self.W)
+        dx = quadrature_measure("dx", msh, self.cell_tags, degree)
+        dS = quadrature_measure("dS", msh, self.facet_tags, degree)
+        n = ufl.FacetNormal(msh)
+        chi = self._gel_indicator()
+
+        def gel_side(expr):
+            return chi("+") * expr("+") + chi("-") * expr("-")
+
+        F = fluid_forms.bulk_residual(V, P, v, q, c.viscosity, dx(int(Tag.FLUID)))
+        F += gel_forms.bulk_residual(v_f, u, p, w, z, q_g, c, dx(int(Tag.GEL)))
+        if self.has_cell:
+            mu_c, lambda_c, d, s = self.cell_moduli
+            F += cell_forms.residual(u, z, mu_c, lambda_c, d, s, dx(int(Tag.CELL)))
+        phi_f = 1 - gel_forms.solid_fraction(u, c)
+        alpha_t = c.viscosity / c.beta
+        tangential = lambda a: a - ufl.dot(a, n) * n  # noqa: E731
+        interface = (ufl.dot(lam, v)
+                     + gel_forms.fluid_interface_residual(v_f, u, w, z, lam, V, n, c, 1)
+                     + (ufl.dot(V, n) - phi_f * ufl.dot(v_f, n)) * ufl.dot(mu, n)
+                     + ufl.dot(tangential(lam - alpha_t * (V - v_f)), tangential(mu)))
+        for tag in self.boundaries.fluid_interfaces.values():
+            F += gel_side(interface) * dS(tag)
+        # diagonal entries for the multiplier rows pinned at the interface ends
+        zero = fem.Constant(msh, 0.0)
+        for tag in self.boundaries.fluid_interfaces.values():
+            F += gel_side(zero * ufl.dot(lam, mu)) * dS(tag)
+        return F
+
+    # -- boundary conditions -------------------------------------------------
+    def _sub(self, i: int, comp: int | None = None):
+        sub = self.W.sub(i) if comp is None else self.W.sub(i).sub(comp)
+        return sub, sub.collapse()[0]
+
+    def _facets(self, tags) -> np.ndarray:
+        return np.unique(np.hstack([self.facet_tags.find(int(t)) for t in tags]).astype(np.int32))
+
+    def _dirichlet(self, i, tags, value=None, comp=None, restrict=None):
+        sub, Vs = self._sub(i, comp)
+        g = fem.Function(Vs)
+        if callable(value):
+            g.interpolate(value)
+        elif value is not None:
+            g.x.array.reshape(-1, np.size(value))[:] = value
+        dofs = fem.locate_dofs_topological((sub, Vs), self.mesh.topology.dim - 1, self._facets(tags))
+        if restrict is not None:
+            keep = np.isin(dofs[0], restrict)
+            dofs = [dofs[0][keep], dofs[1][keep]]
+        return fem.dirichletbc(g, dofs, sub)
+
+    def _active(self, i, regions=None, facets=None) -> np.ndarray:
+        """Dofs (in W) of field ``i`` in the closure of the cells of ``regions`` or on ``facets``."""
+        sub, Vs = self._sub(i)
+        tdim = self.mesh.topology.dim
+        if regions is not None:
+            cells = np.unique(np.hstack([self.cell_tags.find(int(r)) for r in regions]).astype(np.int32))
+            return fem.locate_dofs_topological((sub, Vs), tdim, cells)[0]
+        return fem.locate_dofs_topological((sub, Vs), tdim - 1, self._facets(facets))[0]
+
+    def active_dofs(self) -> np.ndarray:
+        """Every dof that has an equation: each field on its own subdomain."""
+        solid = [Tag.GEL, Tag.CELL] if self.has_cell else [Tag.GEL]
+        parts = [self._active(0, [Tag.FLUID]), self._active(1, [Tag.FLUID]),
+                 self._active(2, [Tag.GEL]), self._active(3, solid), self._active(4, [Tag.GEL]),
+                 self._active(5, facets=list(self.boundaries.fluid_interfaces.values()))]
+        return np.unique(np.hstack(parts))
+
+    def _boundary_conditions(self):
+        b = self.boundaries
+        iV, iP, ivf, iu, ip, ilam = range(6)
+        bcs = []
+        for tags, value in b.fluid_velocity:
+            bcs.append(self._dirichlet(iV, tags, value))
+        for tags, comp, value in b.fluid_component:
+            bcs.append(self._dirichlet(iV, tags, value, comp))
+        # multiplier components on the interface where the fluid velocity is fixed by an outer boundary
+        on_interface = self._active(ilam, facets=list(b.fluid_interfaces.values()))
+        for tags, comps in b.fluid_dirichlet_tags():
+            for comp in comps:
+                bcs.append(self._dirichlet(ilam, tags, 0.0, comp, restrict=on_interface))
+        no_slip = list(b.gel_no_slip) + list(b.cell_interfaces.values())
+        bcs.append(self._dirichlet(ivf, no_slip, (0.0, 0.0)))
+        bcs.append(self._dirichlet(iu, b.gel_no_slip, (0.0, 0.0)))
+        for tags, comp in b.gel_symmetry:
+            bcs.append(self._dirichlet(ivf, tags, 0.0, comp))
+            bcs.append(self._dirichlet(iu, tags, 0.0, comp))
+        for tags, comp in b.cell_symmetry:
+            bcs.append(self._dirichlet(iu, tags, 0.0, comp))
+        return bcs
+
+    # -- solve and results ---------------------------------------------------
+    def solve(self) -> int:
+        """Newton on the full system; returns the number of iterations."""
+        t0 = time.perf_counter()
+        iterations = self.newton.solve()
+        self.solve_time += time.perf_counter() - t0
+        return iterations
+
+    def field(self, name: str) -> fem.Function:
+        """One field as a function on the whole mesh (collapsed)."""
+        f = self.w.sub(FIELDS.index(name)).collapse()
+        f.name = name
+        return f
+
+    @property
+    def num_dofs(self) -> int:
+        return self.W.dofmap.index_map.size_global * self.W.dofmap.index_map_bs

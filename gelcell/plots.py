@@ -1,0 +1,154 @@
+"""Figures of a device run (PNG, matplotlib Agg), drawn on rank 0 from gathered data.
+
+Coordinates are in units of L0; field values in SI-derived units (µm/s, µm,
+mPa) so that a bioengineer reads them directly.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.tri as mtri  # noqa: E402
+
+import ufl  # noqa: E402
+
+from gelcell.output import derived_cell_fields, derived_gel_fields, gather_p1  # noqa: E402
+from gelcell.results import DeviceFields  # noqa: E402
+
+__all__ = ["draw_figures", "plot_profiles"]
+
+
+def _triangulation(data):
+    X, T, _ = data
+    return mtri.Triangulation(X[:, 0], X[:, 1], T)
+
+
+def _field_panel(ax, data, values, label, cmap="viridis"):
+    tri = _triangulation(data)
+    m = ax.tripcolor(tri, values, shading="gouraud", cmap=cmap)
+    plt.colorbar(m, ax=ax, label=label, shrink=0.8)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x / L0")
+    ax.set_ylabel("y / L0")
+    return tri
+
+
+def _streamlines(ax, tri, vx, vy):
+    xmin, xmax = tri.x.min(), tri.x.max()
+    ymin, ymax = tri.y.min(), tri.y.max()
+    nx = 200
+    ny = max(20, int(nx * (ymax - ymin) / (xmax - xmin)))
+    gx, gy = np.meshgrid(np.linspace(xmin, xmax, nx), np.linspace(ymin, ymax, ny))
+    ix, iy = mtri.LinearTriInterpolator(tri, vx)(gx, gy), mtri.LinearTriInterpolator(tri, vy)(gx, gy)
+    u, v = np.ma.filled(ix, np.nan), np.ma.filled(iy, np.nan)
+    ax.streamplot(gx, gy, u, v, color="w", linewidth=0.6, density=1.2, arrowsize=0.6)
+
+
+def _save(fig, directory, name, written):
+    path = os.path.join(directory, name)
+    fig.savefig(path, dpi=150, bbox_inches="tight")
+    plt.close(fig)
+    written.append(name)
+
+
+def plot_profiles(path: str, profiles: dict, params, overlay: dict | None = None,
+                  labels: tuple[str, str] = ("with cell", "without cell")) -> None:
+    """The four Gamma1 profiles v_fx, v_fy, u_sx, u_sy against the undeformed coordinate."""
+    V = params.to_report(1.0, "velocity")
+    L = params.to_report(1.0, "length")
+    along = "X" if np.ptp(profiles["X"]) >= np.ptp(profiles["Y"]) else "Y"
+    fig, axes = plt.subplots(2, 2, figsize=(10, 6), sharex=True)
+    spec = [("v_fx", V, "v_f,x [µm/s]"), ("v_fy", V, "v_f,y [µm/s]"),
+            ("u_sx", L, "u_s,x [µm]"), ("u_sy", L, "u_s,y [µm]")]
+    for ax, (key, factor, label) in zip(axes.ravel(), spec):
+        ax.plot(profiles[along], factor * profiles[key], "-", label=labels[0])
+        if overlay is not None:
+            ax.plot(overlay[along], factor * overlay[key], "--", label=labels[1])
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    for ax in axes[1]:
+        ax.set_xlabel(f"{along} / L0 along Γ1")
+    if overlay is not None:
+        axes[0, 0].legend()
+    fig.suptitle(f"{params.case} flow: profiles along Γ1")
+    fig.savefig(path, dpi=150, bbox_inches="tight")
+    plt.close(fig)
+
+
+def draw_figures(directory: str, fields: DeviceFields, profiles: dict, summary: dict,
+                 overlay: dict | None = None) -> list[str]:
+    """Draw every figure of a run into ``directory``; returns the file names (rank 0)."""
+    p = fields.params
+    comm = fields.comm
+    V, L, S = p.to_report(1.0, "velocity"), p.to_report(1.0, "length"), p.to_report(1.0, "stress")
+    gel = derived_gel_fields(fields)
+    speed = gather_p1(gel["v_f"])
+    pressure = gather_p1(gel["p"])
+    disp = gather_p1(gel["u_s"])
+    vm = gather_p1(gel["von_mises_network"])
+    parts = {k: gather_p1(gel[f"von_mises_{k}_part"]) for k in ("pressure", "brinkman", "network", "total")}
+    cell = None
+    if fields.cell_displacement is not None:
+        cf = derived_cell_fields(fields)
+        cell = gather_p1(cf["u_c"])
+    written: list[str] = []
+    if comm.rank != 0:
+        return written
+    wide = p.case == "normal"
+    size = (11, 3.2) if wide else (8, 4)
+
+    fig, ax = plt.subplots(figsize=size)
+    vals = speed[2]
+    tri = _field_panel(ax, speed, V * np.linalg.norm(vals, axis=1), "|v_f| [µm/s]")
+    _streamlines(ax, tri, vals[:, 0], vals[:, 1])
+    ax.set_title("interstitial velocity in the gel")
+    _save(fig, directory, "gel_velocity.png", written)
+
+    fig, ax = plt.subplots(figsize=size)
+    _field_panel(ax, pressure, S * pressure[2], "p [mPa]", cmap="coolwarm")
+    ax.set_title("pore pressure in the gel")
+    _save(fig, directory, "gel_pressure.png", written)
+
+    fig, axes = plt.subplots(2, 1, figsize=(size[0], 2 * size[1]))
+    _field_panel(axes[0], disp, L * np.linalg.norm(disp[2], axis=1), "|u_s| [µm]")
+    axes[0].set_title("network displacement")
+    _field_panel(axes[1], vm, S * vm[2], "von Mises of σ_s [mPa]", cmap="magma")
+    axes[1].set_title("von Mises stress of the network")
+    _save(fig, directory, "gel_displacement_von_mises.png", written)
+
+    plot_profiles(os.path.join(directory, "gamma1_profiles.png"), profiles["Gamma1"], p, overlay)
+    written.append("gamma1_profiles.png")
+
+    if cell is not None:
+        centre = np.asarray(p.geometry.cell_centre)
+        r = 0.5 * p.geometry.cell_diameter
+        X, _, U = cell
+        rel = U - np.asarray(summary["cell.centroid_displacement"])
+        fig, ax = plt.subplots(figsize=(5, 5))
+        ax.quiver(X[:, 0], X[:, 1], L * rel[:, 0], L * rel[:, 1], angles="xy")
+        t = np.linspace(0, 2 * np.pi, 200)
+        ax.plot(centre[0] + r * np.cos(t), centre[1] + r * np.sin(t), "k-", lw=0.5)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x / L0")
+        ax.set_ylabel("y / L0")
+        ax.set_title("cell displacement relative to its centroid [µm, arrows not to scale]")
+        _save(fig, directory, "cell_displacement.png", written)
+
+        fig, axes = plt.subplots(2, 2, figsize=(9, 8))
+        for ax, (key, data) in zip(axes.ravel(), parts.items()):
+            _field_panel(ax, data, S * data[2], "von Mises [mPa]", cmap="magma")
+            ax.set_xlim(centre[0] - 4 * r, centre[0] + 4 * r)
+            ax.set_ylim(centre[1] - 4 * r, centre[1] + 4 * r)
+            ax.plot(centre[0] + r * np.cos(t), centre[1] + r * np.sin(t), "w-", lw=0.8)
+            ax.set_title({"pressure": "pressure  −p I", "brinkman": "Brinkman  φ_f σ_f",
+                          "network": "network  φ_s σ_s", "total": "total"}[key])
+        fig.suptitle("stress parts in the gel around the cell (von Mises)")
+        fig.subplots_adjust(wspace=0.5, hspace=0.35)
+        _save(fig, directory, "cell_traction_parts.png", written)
+    return written

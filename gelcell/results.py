@@ -1,0 +1,317 @@
+"""The solution of a device case as fields on the region meshes, and what users ask of it.
+
+Both the partitioned run and the monolithic reference end here: the
+monolithic fields are copied node by node onto the region meshes (the nodes
+coincide), so every reported quantity is computed by the same code for both.
+
+Units.  Fields are stored in the solvers' units (velocity V0, stress
+s mu_s, displacement d L0, with s = d = Ca by default); ``summarize`` reports
+every quantity in the paper's dimensionless units (L0, V0, mu_s) and, in an
+``si`` block, in µm, µm/s and mPa.
+
+Conventions of the reported quantities (model.md section 7):
+  * maxima of |v_f|, |u_s|, |u_c| are taken over the P2 nodes;
+  * stresses and strains are evaluated per cell at the vertices (a DG1
+    interpolation of the exact expression, which is linear per cell for the
+    small-strain part) and their extrema taken over those points, so that
+    the result is independent of the partition;
+  * von Mises:  sqrt(sxx^2 + syy^2 - sxx syy + 3 sxy^2), for strains applied
+    to the Green-Lagrange strain E = (F^T F - I)/2;
+  * the traction parts around the cell are the von Mises measures of -p I,
+    phi_f sigma_f, phi_s sigma_s and their sum, maximised over the gel within
+    one cell diameter of Gamma2 (distance from the cell's surface <= d);
+  * the volume change below Gamma1 is the change of area of the region bounded
+    by Gamma1 (Gamma3) and the gel's fixed walls, cell included:
+    int_gel (J - 1) + int_cell (J_c - 1); the cell's share is its term over the sum.
+    Compression and dilatation largely cancel in it (by ~1e3 at baseline), so
+    ``local_volume_change_magnitude`` = int |J - 1| is reported as its scale.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import typing
+
+import numpy as np
+
+from mpi4py import MPI
+
+import ufl
+from dolfinx import fem
+
+import cell.forms as cell_forms
+import gel.forms as gel_forms
+from femtools.functions import global_max, interpolate, von_mises
+from femtools.interface import InterfaceNodes
+from femtools.transfer import NodalTransfer
+from gelcell.geometry import Tag
+from gelcell.parameters import CaseParameters
+
+__all__ = ["DeviceFields", "fields_from_device", "fields_from_monolithic", "summarize",
+           "gamma_profiles", "relative_differences"]
+
+
+@dataclasses.dataclass
+class DeviceFields:
+    """Fields of a solved device case on the region meshes (solver units)."""
+
+    params: CaseParameters
+    fluid_velocity: fem.Function
+    fluid_pressure: fem.Function
+    interstitial_velocity: fem.Function
+    displacement: fem.Function
+    pore_pressure: fem.Function
+    cell_displacement: fem.Function | None
+    fluid_tags: typing.Any
+    gel_tags: typing.Any
+    cell_tags: typing.Any = None
+
+    @property
+    def comm(self) -> MPI.Comm:
+        return self.displacement.function_space.mesh.comm
+
+    @property
+    def gel_mesh(self):
+        return self.displacement.function_space.mesh
+
+    @property
+    def cell_mesh(self):
+        return None if self.cell_displacement is None else self.cell_displacement.function_space.mesh
+
+    def gel_coefficients(self) -> gel_forms.GelCoefficients:
+        p, m = self.params, self.gel_mesh
+        ph, s, d = p.physics, p.stress_scale, p.displacement_scale
+        c = lambda v: fem.Constant(m, float(v))  # noqa: E731
+        return gel_forms.GelCoefficients(phi_s0=c(ph.phi_s0), xi=c(ph.xi), lambda_s=c(ph.lambda_s),
+                                         beta=c(ph.beta), eta=c(ph.eta), viscosity=c(ph.ca / s),
+                                         stiffness=c(d / s), d=c(d))
+
+
+def fields_from_device(device) -> DeviceFields:
+    """The current fields of a partitioned :class:`gelcell.device.Device`."""
+    fluid_mesh, fluid_tags = device.mesh.region("fluid")
+    _, gel_tags = device.mesh.region("gel")
+    cell_tags = device.mesh.region("cell")[1] if device.cell is not None else None
+    gel = device.gel
+    return DeviceFields(
+        params=device.params, fluid_velocity=device.fluid.velocity, fluid_pressure=device.fluid.pressure,
+        interstitial_velocity=gel.interstitial_velocity(), displacement=gel.displacement(),
+        pore_pressure=gel.pore_pressure(),
+        cell_displacement=None if device.cell is None else device.cell.displacement,
+        fluid_tags=fluid_tags, gel_tags=gel_tags, cell_tags=cell_tags)
+
+
+def _region_spaces(msh):
+    return (fem.VectorFunctionSpace(msh, ("Lagrange", 2)), fem.FunctionSpace(msh, ("Lagrange", 1)))
+
+
+def fields_from_monolithic(solver, device_mesh, params: CaseParameters) -> DeviceFields:
+    """Copy the monolithic solution onto the region meshes of ``device_mesh``."""
+    fluid_mesh, fluid_tags = device_mesh.region("fluid")
+    gel_mesh, gel_tags = device_mesh.region("gel")
+    out = {}
+    for region, msh, names in (("fluid", fluid_mesh, ("V", "P")), ("gel", gel_mesh, ("v_f", "u", "p"))):
+        Vv, Vs = _region_spaces(msh)
+        for name in names:
+            src = solver.field(name)
+            dst = fem.Function(Vs if name in ("P", "p") else Vv, name=name)
+            NodalTransfer(src.function_space, dst.function_space).apply(src, dst)
+            out[name] = dst
+    u_c, cell_tags = None, None
+    if params.with_cell:
+        cell_mesh, cell_tags = device_mesh.region("cell")
+        Vv, _ = _region_spaces(cell_mesh)
+        src = solver.field("u")
+        u_c = NodalTransfer(src.function_space, Vv).apply(src, fem.Function(Vv, name="u_c"))
+    return DeviceFields(params=params, fluid_velocity=out["V"], fluid_pressure=out["P"],
+                        interstitial_velocity=out["v_f"], displacement=out["u"], pore_pressure=out["p"],
+                        cell_displacement=u_c, fluid_tags=fluid_tags, gel_tags=gel_tags, cell_tags=cell_tags)
+
+
+# -- evaluation helpers ----------------------------------------------------------
+def _owned_nodal(u: fem.Function) -> np.ndarray:
+    imap, bs = u.function_space.dofmap.index_map, u.function_space.dofmap.index_map_bs
+    return u.x.array[: imap.size_local * bs].reshape(-1, bs)
+
+
+def _max_norm(u: fem.Function) -> float:
+    return global_max(np.linalg.norm(_owned_nodal(u), axis=1), u.function_space.mesh.comm)
+
+
+class _PointValues:
+    """Values of scalar UFL expressions at the vertices of every cell (DG1 dofs), owned only."""
+
+    def __init__(self, msh):
+        self.space = fem.FunctionSpace(msh, ("DG", 1))
+        n = self.space.dofmap.index_map.size_local
+        self.points = self.space.tabulate_dof_coordinates()[:n, :2]
+        self.comm = msh.comm
+
+    def __call__(self, expr) -> np.ndarray:
+        f = interpolate(expr, self.space)
+        return f.x.array[: self.points.shape[0]].copy()
+
+    def extrema(self, values: np.ndarray, mask: np.ndarray | None = None):
+        """Global (min, max) and the location of the max."""
+        v = values if mask is None else values[mask]
+        x = self.points if mask is None else self.points[mask]
+        local_max = (float(v.max()), x[int(np.argmax(v))].tolist()) if v.size else (-np.inf, [np.nan, np.nan])
+        local_min = float(v.min()) if v.size else np.inf
+        gathered = self.comm.allgather(local_max)
+        vmax, where = max(gathered, key=lambda t: t[0])
+        vmin = self.comm.allreduce(local_min, op=MPI.MIN)
+        return vmin, vmax, where
+
+
+def _integral(expr, dx, comm) -> float:
+    return comm.allreduce(fem.assemble_scalar(fem.form(expr * dx)), op=MPI.SUM)
+
+
+def _cell_geometry(params: CaseParameters):
+    g = params.geometry
+    return np.asarray(g.cell_centre, dtype=float), 0.5 * float(g.cell_diameter)
+
+
+# -- the summary ------------------------------------------------------------------
+def summarize(fields: DeviceFields) -> dict:
+    """Every quantity of model.md section 7, dimensionless (paper units) and SI."""
+    p = fields.params
+    s, d = p.stress_scale, p.displacement_scale
+    comm = fields.comm
+    gm = fields.gel_mesh
+    c = fields.gel_coefficients()
+    v_f, u, pp = fields.interstitial_velocity, fields.displacement, fields.pore_pressure
+    gel_points = _PointValues(gm)
+    phi_s = gel_forms.solid_fraction(u, c)
+    sigma_s = gel_forms.network_stress(u, c)
+    sigma_f = gel_forms.fluid_stress(v_f, c)
+    vm_network = gel_points(von_mises(sigma_s))
+    _, vm_net_max, vm_net_where = gel_points.extrema(vm_network)
+    dx_gel = ufl.Measure("dx", domain=gm)
+    _, theta_gel, _ = gel_forms.kinematics(u, c.d)
+    dA_gel = d * _integral(theta_gel, dx_gel, comm)
+    dA_abs = d * _integral(abs(theta_gel), dx_gel, comm)
+    area_gel = _integral(fem.Constant(gm, 1.0), dx_gel, comm)
+    grad_norm = gel_points(ufl.sqrt(ufl.inner(ufl.grad(u), ufl.grad(u))))
+    out = {
+        "model": {
+            "approximation": "steady state; gel on the reference configuration (no mesh motion)",
+            "max_displacement_gradient": d * gel_points.extrema(grad_norm)[1],
+        },
+        "gel": {
+            "max_interstitial_speed": _max_norm(v_f),
+            "max_network_displacement": d * _max_norm(u),
+            "max_network_von_mises": s * vm_net_max,
+            "max_network_von_mises_location": vm_net_where,
+        },
+        "cell": None,
+    }
+    dA_cell, area_cell = 0.0, 0.0
+    if fields.cell_displacement is not None:
+        uc = fields.cell_displacement
+        cm = fields.cell_mesh
+        mu_c, lam_c = fem.Constant(cm, float(p.mu_c)), fem.Constant(cm, float(p.lambda_c))
+        dc, sc = fem.Constant(cm, float(d)), fem.Constant(cm, float(s))
+        dx_cell = ufl.Measure("dx", domain=cm)
+        area_cell = _integral(fem.Constant(cm, 1.0), dx_cell, comm)
+        centroid = [d * _integral(uc[i], dx_cell, comm) / area_cell for i in range(2)]
+        cell_points = _PointValues(cm)
+        vm_strain = cell_points(von_mises(cell_forms.green_lagrange(uc, dc)))
+        vm_stress = cell_points(von_mises(cell_forms.cauchy_stress(uc, mu_c, lam_c, dc, sc)))
+        e_min, e_max, _ = cell_points.extrema(vm_strain)
+        s_min, s_max, _ = cell_points.extrema(vm_stress)
+        _, theta_cell, _ = cell_forms.kinematics(uc, dc)
+        dA_cell = d * _integral(theta_cell, dx_cell, comm)
+        dA_abs += d * _integral(abs(theta_cell), dx_cell, comm)
+        # traction parts: von Mises of each stress part in the gel within one diameter of the cell
+        centre, radius = _cell_geometry(p)
+        near = np.linalg.norm(gel_points.points - centre, axis=1) <= radius + 2 * radius * (1 + 1e-9)
+        I = ufl.Identity(2)
+        parts = {"pressure": -pp * I, "brinkman": (1 - phi_s) * sigma_f, "network": phi_s * sigma_s,
+                 "total": gel_forms.total_stress(v_f, u, pp, c)}
+        traction = {k: s * gel_points.extrema(gel_points(von_mises(e)), near)[1] for k, e in parts.items()}
+        out["cell"] = {
+            "centroid_displacement": centroid,
+            "max_displacement": d * _max_norm(uc),
+            "von_mises_strain": [e_min, e_max],
+            "von_mises_stress": [s * s_min, s * s_max],
+            "max_traction_von_mises": traction,
+        }
+    total = dA_gel + dA_cell
+    out["gel"]["volume_change_below_gamma1"] = total
+    # int |J - 1|: the scale of the local dilatations whose sum the volume change is
+    # (compression and dilatation largely cancel, so the sum is much smaller)
+    out["gel"]["local_volume_change_magnitude"] = dA_abs
+    out["gel"]["relative_volume_change_below_gamma1"] = total / (area_gel + area_cell)
+    out["gel"]["volume_change_share_of_cell"] = dA_cell / total if total != 0 else 0.0
+    out["si"] = _to_si(out, p)
+    return out
+
+
+def _to_si(out: dict, p: CaseParameters) -> dict:
+    """The same quantities in µm, µm/s and mPa (strains and shares stay dimensionless)."""
+    L = p.to_report(1.0, "length")
+    V = p.to_report(1.0, "velocity")
+    S = p.to_report(1.0, "stress")
+    g = out["gel"]
+    si = {"model": dict(out["model"]),
+          "units": {"length": "µm", "velocity": "µm/s", "stress": "mPa", "area": "µm^2"},
+          "gel": {"max_interstitial_speed": g["max_interstitial_speed"] * V,
+                  "max_network_displacement": g["max_network_displacement"] * L,
+                  "max_network_von_mises": g["max_network_von_mises"] * S,
+                  "max_network_von_mises_location": [x * L for x in g["max_network_von_mises_location"]],
+                  "volume_change_below_gamma1": g["volume_change_below_gamma1"] * L * L,
+                  "local_volume_change_magnitude": g["local_volume_change_magnitude"] * L * L,
+                  "relative_volume_change_below_gamma1": g["relative_volume_change_below_gamma1"],
+                  "volume_change_share_of_cell": g["volume_change_share_of_cell"]}}
+    cl = out["cell"]
+    if cl is not None:
+        si["cell"] = {"centroid_displacement": [x * L for x in cl["centroid_displacement"]],
+                      "max_displacement": cl["max_displacement"] * L,
+                      "von_mises_strain": list(cl["von_mises_strain"]),
+                      "von_mises_stress": [x * S for x in cl["von_mises_stress"]],
+                      "max_traction_von_mises": {k: v * S for k, v in cl["max_traction_von_mises"].items()}}
+    else:
+        si["cell"] = None
+    return si
+
+
+def gamma_profiles(fields: DeviceFields, interface: str = "Gamma1") -> dict[str, np.ndarray]:
+    """v_f and u_s along a fluid-gel interface against the undeformed coordinates (paper units).
+
+    Rows are sorted along the interface (by X on Gamma1 of the shear device,
+    by Y on the vertical interfaces of the normal-flow device).
+    """
+    tag = int(Tag.GAMMA1 if interface == "Gamma1" else Tag.GAMMA3)
+    d = fields.params.displacement_scale
+    nodes = InterfaceNodes(fields.interstitial_velocity.function_space, fields.gel_tags, tag)
+    vf = nodes.from_function(fields.interstitial_velocity)
+    us = d * nodes.from_function(fields.displacement)
+    X, Y = nodes.points[:, 0], nodes.points[:, 1]
+    order = np.argsort(X if np.ptp(X) >= np.ptp(Y) else Y, kind="stable")
+    return {"X": X[order], "Y": Y[order], "v_fx": vf[order, 0], "v_fy": vf[order, 1],
+            "u_sx": us[order, 0], "u_sy": us[order, 1]}
+
+
+def _l2(f, comm) -> float:
+    dx = ufl.Measure("dx", domain=f.function_space.mesh)
+    return np.sqrt(_integral(ufl.inner(f, f), dx, comm))
+
+
+def relative_differences(a: DeviceFields, b: DeviceFields) -> dict[str, float]:
+    """Relative L2 differences ||a - b|| / ||b|| of every field (same meshes required)."""
+    out = {}
+    pairs = [("fluid_velocity", a.fluid_velocity, b.fluid_velocity),
+             ("fluid_pressure", a.fluid_pressure, b.fluid_pressure),
+             ("interstitial_velocity", a.interstitial_velocity, b.interstitial_velocity),
+             ("displacement", a.displacement, b.displacement),
+             ("pore_pressure", a.pore_pressure, b.pore_pressure)]
+    if a.cell_displacement is not None and b.cell_displacement is not None:
+        pairs.append(("cell_displacement", a.cell_displacement, b.cell_displacement))
+    for name, fa, fb in pairs:
+        diff = fem.Function(fb.function_space)
+        NodalTransfer(fa.function_space, fb.function_space).apply(fa, diff)
+        diff.x.array[:] -= fb.x.array
+        ref = _l2(fb, fb.function_space.mesh.comm)
+        out[name] = _l2(diff, fb.function_space.mesh.comm) / ref if ref > 0 else 0.0
+    return out

@@ -1,0 +1,255 @@
+"""Run one device case (partitioned or monolithic) and write its results.
+
+Used by ``gelcell run`` and ``gelcell sweep``; also importable::
+
+    from gelcell.runner import run_case
+    summary = run_case(CaseParameters.default("shear"), out="results/shear")
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+import typing
+
+import numpy as np
+
+from mpi4py import MPI
+
+import coupling as cp
+from femtools.io import atomic_directory
+from gelcell.checks import format_residuals, interface_residuals
+from gelcell.device import Device, coupling_config
+from gelcell.geometry import build_device
+from gelcell.monolithic import MonolithicCoefficients, MonolithicSolver
+from gelcell.output import write_fields, write_json_file, write_profiles
+from gelcell.parameters import CaseParameters
+from gelcell.results import DeviceFields, fields_from_device, fields_from_monolithic, summarize
+
+__all__ = ["run_case", "solve_partitioned", "solve_monolithic", "format_summary", "CaseRun"]
+
+
+class CaseRun(typing.NamedTuple):
+    """A solved case: its fields, its summary, and the solver object behind it."""
+
+    fields: DeviceFields
+    summary: dict
+    solver: typing.Any
+
+
+def _mesh_block(device_mesh, solvers: dict) -> dict:
+    counts = device_mesh.counts()
+    out = {}
+    for region, solver in solvers.items():
+        cells = counts[region]["cells"] if isinstance(counts.get(region), dict) else None
+        out[region] = {"cells": cells, "dofs": solver}
+    return out
+
+
+def _dofs(space) -> int:
+    return space.dofmap.index_map.size_global * space.dofmap.index_map_bs
+
+
+def monolithic_coefficients(params: CaseParameters) -> MonolithicCoefficients:
+    ph = params.physics
+    return MonolithicCoefficients(phi_s0=ph.phi_s0, xi=ph.xi, lambda_s=ph.lambda_s, beta=ph.beta, eta=ph.eta,
+                                  Ca=ph.ca, mu_c=params.mu_c, lambda_c=params.lambda_c,
+                                  stress_scale=params.stress_scale, displacement_scale=params.displacement_scale)
+
+
+def solve_partitioned(params: CaseParameters, scheme: str = "serial", acceleration: str = "iqn-ils",
+                      coupling: typing.Mapping | None = None, comm: MPI.Comm = MPI.COMM_WORLD,
+                      verbose: bool = True, robin_coefficient: float | None = None,
+                      checks: bool = True) -> CaseRun:
+    """Solve a case with the partitioned scheme; summary with coupling, timing and checks."""
+    t0 = time.perf_counter()
+    device = Device(params, comm, robin_coefficient=robin_coefficient)
+    config = coupling_config(scheme, acceleration, with_cell=params.with_cell,
+                             overrides=dict(coupling or params.coupling or {}))
+    t1 = time.perf_counter()
+    result = device.solve(config, verbose=verbose)
+    t_solve = time.perf_counter() - t1
+    fields = fields_from_device(device)
+    summary = summarize(fields)
+    summary["method"] = "partitioned"
+    summary["coupling"] = {
+        "scheme": config["scheme"], "acceleration": config["acceleration"]["type"],
+        "robin_coefficient": device.alpha_n, "iterations": result.iterations, "converged": result.converged,
+        "reason": result.reason, "residual_history": result.residual_history,
+        "relaxation": result.relaxation}
+    summary["mesh"] = {
+        "fluid": {"cells": _cells(device.fluid.velocity), "dofs": _dofs(device.fluid.W)
+                  if hasattr(device.fluid, "W") else None},
+        "gel": {"cells": _cells(fields.displacement), "dofs": _dofs(device.gel.W)},
+    }
+    if device.cell is not None:
+        summary["mesh"]["cell"] = {"cells": _cells(device.cell.displacement),
+                                   "dofs": _dofs(device.cell.displacement.function_space)}
+    summary["timing"] = {"setup": device.mesh_time + device.setup_time, "coupling": t_solve,
+                         **{f"solve_{k}": v for k, v in result.timing.items()},
+                         "total": time.perf_counter() - t0}
+    if checks:
+        summary["interface_residuals"] = interface_residuals(fields)
+    return CaseRun(fields, summary, device)
+
+
+def _cells(f) -> int:
+    msh = f.function_space.mesh
+    return msh.topology.index_map(msh.topology.dim).size_global
+
+
+def solve_monolithic(params: CaseParameters, comm: MPI.Comm = MPI.COMM_WORLD, checks: bool = True) -> CaseRun:
+    """Solve a case with the monolithic reference; same summary as the partitioned run."""
+    t0 = time.perf_counter()
+    dev_mesh = build_device(params, comm, whole=True)
+    msh, ct, ft = dev_mesh.whole
+    from gelcell.boundaries import device_boundaries
+    b = device_boundaries(params.case, params.with_cell, getattr(params.geometry, "channel_height", 0.2))
+    solver = MonolithicSolver(msh, ct, ft, b, monolithic_coefficients(params))
+    t1 = time.perf_counter()
+    iterations = solver.solve()
+    t_solve = time.perf_counter() - t1
+    fields = fields_from_monolithic(solver, dev_mesh, params)
+    summary = summarize(fields)
+    summary["method"] = "monolithic"
+    summary["monolithic"] = {"newton_iterations": iterations, "newton_history": solver.newton.history,
+                             "active_dofs": int(solver.newton.num_active_dofs),
+                             "dofs": solver.num_dofs}
+    summary["coupling"] = None
+    summary["mesh"] = {"whole": {"cells": msh.topology.index_map(2).size_global, "dofs": solver.num_dofs},
+                       "fluid": {"cells": _cells(fields.fluid_velocity)},
+                       "gel": {"cells": _cells(fields.displacement)}}
+    if fields.cell_displacement is not None:
+        summary["mesh"]["cell"] = {"cells": _cells(fields.cell_displacement)}
+    summary["timing"] = {"setup": solver.setup_time + (t1 - t0 - solver.setup_time), "solve": t_solve,
+                         "total": time.perf_counter() - t0}
+    if checks:
+        summary["interface_residuals"] = interface_residuals(fields)
+    return CaseRun(fields, summary, solver)
+
+
+_ROWS = [
+    ("max |v_f| in the gel", ("gel", "max_interstitial_speed"), "velocity"),
+    ("max |u_s| in the gel", ("gel", "max_network_displacement"), "length"),
+    ("max von Mises of sigma_s", ("gel", "max_network_von_mises"), "stress"),
+    ("volume change below Gamma1", ("gel", "volume_change_below_gamma1"), "area"),
+    ("  share due to the cell", ("gel", "volume_change_share_of_cell"), None),
+    ("cell centroid displacement x", ("cell", "centroid_displacement", 0), "length"),
+    ("cell centroid displacement y", ("cell", "centroid_displacement", 1), "length"),
+    ("max |u_c| in the cell", ("cell", "max_displacement"), "length"),
+    ("cell von Mises strain min", ("cell", "von_mises_strain", 0), None),
+    ("cell von Mises strain max", ("cell", "von_mises_strain", 1), None),
+    ("cell von Mises stress min", ("cell", "von_mises_stress", 0), "stress"),
+    ("cell von Mises stress max", ("cell", "von_mises_stress", 1), "stress"),
+    ("traction near cell: pressure", ("cell", "max_traction_von_mises", "pressure"), "stress"),
+    ("traction near cell: Brinkman", ("cell", "max_traction_von_mises", "brinkman"), "stress"),
+    ("traction near cell: network", ("cell", "max_traction_von_mises", "network"), "stress"),
+    ("traction near cell: total", ("cell", "max_traction_von_mises", "total"), "stress"),
+]
+_UNITS = {"velocity": "µm/s", "length": "µm", "stress": "mPa", "area": "µm²", None: "-"}
+
+
+def _get(d, path):
+    for k in path:
+        if d is None:
+            return None
+        d = d[k]
+    return d
+
+
+def _flat(block: dict | None, prefix: str, names: typing.Iterable[str]) -> dict:
+    return {f"{prefix}.{k}": (None if block is None else block[k]) for k in names}
+
+
+_GEL_KEYS = ("max_interstitial_speed", "max_network_displacement", "max_network_von_mises",
+             "max_network_von_mises_location", "volume_change_below_gamma1", "local_volume_change_magnitude",
+             "relative_volume_change_below_gamma1", "volume_change_share_of_cell")
+_CELL_KEYS = ("centroid_displacement", "max_displacement", "von_mises_strain", "von_mises_stress",
+              "max_traction_von_mises")
+
+
+def report(summary: dict, params: CaseParameters) -> dict:
+    """The layout of summary.json: ``case``, ``cell`` (bool), quantities as dotted keys.
+
+    Every quantity appears as a top-level dotted key (``gel.max_interstitial_speed``,
+    ``cell.centroid_displacement``, ... ; ``null`` for cell quantities without a
+    cell), in the paper's dimensionless units; the ``si`` block repeats them in
+    µm/s, µm and mPa.  ``gel_quantities``/``cell_quantities`` hold the same
+    values nested.
+    """
+    gel, cell = summary.pop("gel"), summary.pop("cell")
+    si = summary.pop("si")
+    out = {"case": params.case, "cell": bool(params.with_cell), "method": summary.pop("method")}
+    out.update(_flat(gel, "gel", _GEL_KEYS))
+    out.update(_flat(cell, "cell", _CELL_KEYS))
+    out["si"] = {"units": si["units"], **_flat(si["gel"], "gel", _GEL_KEYS), **_flat(si["cell"], "cell", _CELL_KEYS)}
+    out["parameters"] = params.to_dict()
+    out["cell_moduli_note"] = (f"cell moduli mu_c = {params.cell.mu_c:g} Pa, lambda_c = {params.cell.lambda_c:g} Pa "
+                               f"= {params.cell_moduli_multiple:g} x the gel's drained modulus phi_s0 mu_s")
+    out.update(summary)
+    out["gel_quantities"], out["cell_quantities"] = gel, cell
+    return out
+
+
+def format_summary(summary: dict) -> str:
+    """A short table: quantity, paper's dimensionless value, SI value."""
+    lines = [f"{'quantity':32s} {'dimensionless':>14s} {'SI':>14s}  unit", "-" * 70]
+    for label, path, kind in _ROWS:
+        key, rest = f"{path[0]}.{path[1]}", path[2:]
+        v = _get(summary.get(key), rest) if key in summary else None
+        if v is None:
+            continue
+        si = _get(summary["si"][key], rest)
+        lines.append(f"{label:32s} {v:14.6e} {si:14.6e}  {_UNITS[kind]}")
+    c = summary.get("coupling")
+    if c:
+        lines.append(f"coupling: {c['scheme']} / {c['acceleration']}, {c['iterations']} iterations, "
+                     f"converged={c['converged']}")
+    t = summary.get("timing", {})
+    if t:
+        lines.append("timing [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in t.items()))
+    return "\n".join(lines)
+
+
+def run_case(params: CaseParameters, out: str | None, *, monolithic: bool = False, scheme: str = "serial",
+             acceleration: str = "iqn-ils", coupling: typing.Mapping | None = None,
+             comm: MPI.Comm = MPI.COMM_WORLD, verbose: bool = True, figures: bool = True,
+             fields: bool = True, overlay_profiles: dict | None = None, stream=None,
+             extra_json: dict | None = None) -> dict:
+    """Solve one case and write its outputs into ``out`` (whole or not at all)."""
+    stream = stream or sys.stdout
+    say = (lambda msg: print(msg, file=stream, flush=True)) if comm.rank == 0 else (lambda msg: None)
+    say(f"gelcell: {params.case} flow, {'with' if params.with_cell else 'without'} cell, "
+        f"{'monolithic' if monolithic else f'partitioned ({scheme}, {acceleration})'}")
+    if monolithic:
+        run = solve_monolithic(params, comm)
+    else:
+        run = solve_partitioned(params, scheme, acceleration, coupling, comm, verbose)
+    summary = report(run.summary, params)
+    say(format_summary(summary))
+    if "interface_residuals" in summary:
+        say(format_residuals(summary["interface_residuals"]))
+    if out is None:
+        return summary
+    with atomic_directory(out, comm) as tmp:
+        written = ["summary.json"]
+        if fields:
+            written += write_fields(tmp, run.fields)
+        profiles = write_profiles(tmp, run.fields, comm)
+        written += [f"{k.lower()}_profiles.{ext}" for k in profiles for ext in ("h5", "csv")]
+        if run.solver is not None and not monolithic and comm.rank == 0:
+            os.makedirs(os.path.join(tmp, "coupling"), exist_ok=True)
+        if not monolithic:
+            run.solver.scheme.write_records(os.path.join(tmp, "coupling"))
+            written.append("coupling/")
+        if figures:
+            from gelcell.plots import draw_figures
+            written += draw_figures(tmp, run.fields, profiles, summary, overlay_profiles)
+        for name, data in (extra_json or {}).items():
+            write_json_file(os.path.join(tmp, name), data, comm)
+            written.append(name)
+        summary["files"] = written
+        write_json_file(os.path.join(tmp, "summary.json"), summary, comm)
+    say(f"wrote {os.path.abspath(out)}: " + ", ".join(written))
+    return summary
