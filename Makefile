@@ -29,6 +29,7 @@ run: setup
 
 test: setup
 	$(PY) -m pytest -q -ra --durations=15
+	./scripts/pytest-2-ranks
 
 benchmark: setup
 	$(PY) -m pytest -q -m benchmark

@@ -301,7 +301,10 @@ class CouplingScheme:
         inputs = {d: self._mappings[(d, name)](self.values[d]) for d in self._reads[name]}
         recorded_inputs = {k: v.copy() for k, v in inputs.items()} if self.recording else None
         start = _time.perf_counter()
-        raw = self.participants[name].solve(inputs)
+        try:
+            raw = self.participants[name].solve(inputs)
+        except Exception as exc:  # noqa: BLE001  (any solver failure ends the coupling cleanly)
+            raise _ParticipantFailure(name, iteration, exc) from exc
         solve_time[name] = _time.perf_counter() - start
         if not isinstance(raw, Mapping):
             raise TypeError(f"participant {name!r}: solve() must return a dict data name -> array, "
@@ -392,6 +395,10 @@ class CouplingScheme:
                 name = candidate
                 break
         text = f"coupling diverged in the {self._where(rec)}: {reason}"
+        if name is None and rec.records:
+            # e.g. a participant failed: report the data that was worst at the last iteration
+            last = rec.records[-1].measure_values
+            name = max(last, key=lambda n: last[n]) if last else None
         if name is not None:
             text += (f"; residual norms of {name!r}: {self._history_text(rec, name, norms=True)}"
                      f"; its convergence measure: {self._history_text(rec, name)}")
@@ -412,7 +419,13 @@ class CouplingScheme:
         max_iterations = self.config.max_iterations if self.implicit else 1
         for k in range(1, max_iterations + 1):
             before = {n: v.copy() for n, v in self.values.items()}
-            solve_time = self._sweep(self.window, k, t, dt, states)
+            try:
+                solve_time = self._sweep(self.window, k, t, dt, states)
+            except _ParticipantFailure as failure:
+                rec.reason = (f"diverged: participant {failure.participant!r} failed in iteration "
+                              f"{failure.iteration} ({type(failure.error).__name__}: {failure.error})")
+                self._print(f"it {k:3d}  participant {failure.participant!r} FAILED: {failure.error}")
+                return rec
             rnorm = {n: float(np.linalg.norm(self.values[n] - before[n])) for n in self.data}
             vnorm = {n: float(np.linalg.norm(self.values[n])) for n in self.data}
             if k == 1:
@@ -678,6 +691,14 @@ _SCHEMES: dict[str, type[CouplingScheme]] = {
     cls.scheme_name: cls for cls in (SerialImplicitScheme, ParallelImplicitScheme,
                                      SerialExplicitScheme, ParallelExplicitScheme)
 }
+
+
+class _ParticipantFailure(Exception):
+    """A participant's solve raised; carries who, when and the original error."""
+
+    def __init__(self, participant: str, iteration: int, error: BaseException):
+        super().__init__(f"{participant}: {error}")
+        self.participant, self.iteration, self.error = participant, iteration, error
 
 
 def build_scheme(config: CouplingConfig | Mapping[str, Any],

@@ -218,6 +218,18 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- study
+def cmd_study(args: argparse.Namespace) -> int:
+    from gelcell.study import markdown_table, run_study, update_readme
+    study = run_study(args.out, quick=args.quick, mesh_size=args.mesh_size, max_iterations=args.max_iterations)
+    if MPI.COMM_WORLD.rank == 0:
+        print(study["table"])
+        if args.update_readme:
+            update_readme(args.update_readme, markdown_table(study["records"], study["monolithic"]))
+            print(f"updated the coupling-study table in {args.update_readme}")
+    return 0
+
+
 # --------------------------------------------------------------------------- main
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="gelcell", description=DESCRIPTION, epilog=EPILOG,
@@ -265,6 +277,22 @@ def build_parser() -> argparse.ArgumentParser:
                    help="values of the parameter (Ca; multiples of the cell or gel moduli; e in L0)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (replaced)")
     p.set_defaults(func=cmd_sweep)
+
+    p = sub.add_parser("study", help="compare coupling schemes and accelerations on the device cases",
+                       description="Coupling-scheme comparison study: for both devices with the cell and the "
+                                   "stiffness extremes (cell and gel moduli x0.1, x10), every scheme, "
+                                   "acceleration and Robin coefficient; outcome, iterations, participant "
+                                   "solves, wall time, error against the monolithic reference and final "
+                                   "residual.  Writes study.csv, study.json, study.md and "
+                                   "study_convergence.png into DIR.  --quick runs a representative subset "
+                                   "in a few minutes.")
+    p.add_argument("--quick", action="store_true", help="the representative subset (coarse mesh)")
+    p.add_argument("--mesh-size", type=_number, default=None, metavar="F",
+                   help="element size factor (default 3 with --quick, else 2)")
+    p.add_argument("--max-iterations", type=int, default=150, metavar="N")
+    p.add_argument("--update-readme", metavar="README.md", help="replace the study table in this README")
+    p.add_argument("--out", required=True, metavar="DIR", help="output directory (replaced)")
+    p.set_defaults(func=cmd_study)
     return parser
 
 

@@ -24,7 +24,13 @@ def mpirun_available() -> bool:
 
 
 def run_mpi(script: str, nprocs: int = 2, args: list[str] | None = None, timeout: float = 600) -> dict:
-    """Run ``tests/mpi_scripts/<script>`` on ``nprocs`` ranks; return its JSON result."""
+    """Run ``tests/mpi_scripts/<script>`` on ``nprocs`` ranks; return its JSON result.
+
+    Skipped when pytest itself runs under mpirun (an MPI process cannot launch
+    another MPI job); the serial pytest run does these comparisons.
+    """
+    if "OMPI_COMM_WORLD_SIZE" in os.environ or "PMI_SIZE" in os.environ:
+        pytest.skip("runs its own mpirun: done by the serial pytest run")
     if nprocs > 1 and not mpirun_available():
         pytest.skip("mpirun not available")
     path = script if os.path.isabs(script) else os.path.join(SCRIPTS, script)

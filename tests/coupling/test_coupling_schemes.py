@@ -284,3 +284,48 @@ def test_latest_and_mapping_accessors():
     np.testing.assert_array_equal(scheme.mapped("Gamma/force", "neumann_bar"), scheme.latest("Gamma/force"))
     with pytest.raises(KeyError, match="unknown data 'Gamma/forces'"):
         scheme.latest("Gamma/forces")
+
+
+def test_participant_failure_stops_with_history():
+    """A participant that raises (e.g. NaN in a field solve) ends the coupling with a
+    CouplingDivergedError naming the participant and the iteration, with the records so far."""
+    import numpy as np
+    import coupling as cp
+
+    class Blows(cp.Participant):
+        name = "b"
+
+        def __init__(self):
+            self.calls = 0
+
+        def interface_points(self, mesh_name):
+            return np.zeros((1, 1))
+
+        def solve(self, inputs):
+            self.calls += 1
+            if self.calls == 3:
+                raise FloatingPointError("Newton iterate contains NaN")
+            return {"y": 0.5 * inputs["x"] + 1.0}
+
+    class Echo(cp.Participant):
+        name = "a"
+
+        def interface_points(self, mesh_name):
+            return np.zeros((1, 1))
+
+        def solve(self, inputs):
+            return {"x": inputs["y"] + 0.0}
+
+    data = [cp.Data("x", mesh="m", dim=1, writer="a", readers=("b",)),
+            cp.Data("y", mesh="m", dim=1, writer="b", readers=("a",))]
+    config = {"scheme": "serial-implicit", "order": ["a", "b"], "max_iterations": 20, "verbose": False,
+              "convergence": [{"type": "relative", "limit": 1e-12}], "acceleration": {"type": "none"}}
+    scheme = cp.build_scheme(config, [Echo(), Blows()], data)
+    try:
+        scheme.solve()
+    except cp.CouplingDivergedError as err:
+        assert "participant 'b' failed in iteration 3" in str(err)
+        assert "FloatingPointError" in str(err)
+        assert err.result.iterations == 2
+    else:
+        raise AssertionError("the failing participant did not stop the coupling")

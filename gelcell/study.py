@@ -1,0 +1,319 @@
+"""Coupling-scheme comparison study: which scheme and acceleration to use on the device cases.
+
+For every case (both devices with the cell; stiffness extremes of the cell
+and of the gel) and every method (scheme x acceleration x partitioning
+variant) the partitioned problem is solved from rest and compared with the
+monolithic reference of the same case:
+
+    converged or why not (diverged, stagnated, max_iterations), iterations,
+    participant solves, wall time of the coupling loop, error against the
+    monolithic solution (worst relative difference of the summary quantities
+    and of the fields), final residual (worst relative residual of any data).
+
+``run_study(quick=True)`` runs a representative subset in a few minutes; the
+full study is a benchmark (``gelcell study --out DIR``).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import os
+import re
+import time
+import typing
+
+import numpy as np
+
+from mpi4py import MPI
+
+import coupling as cp
+from femtools.io import atomic_directory
+from gelcell.device import Device, coupling_config, default_robin_coefficient
+from gelcell.output import write_json_file
+from gelcell.parameters import CaseParameters
+from gelcell.results import fields_from_device, relative_differences, summarize
+from gelcell.runner import solve_monolithic
+
+__all__ = ["Method", "StudyCase", "study_cases", "study_methods", "run_study", "markdown_table"]
+
+
+@dataclasses.dataclass(frozen=True)
+class StudyCase:
+    """A device case of the study: geometry and stiffness variant."""
+
+    name: str
+    device: str
+    cell_moduli: float = 1.0
+    gel_moduli: float = 1.0
+
+    def parameters(self, mesh_size: float) -> CaseParameters:
+        p = CaseParameters.default(self.device, True).with_mesh_size(mesh_size)
+        if self.cell_moduli != 1.0:
+            p = p.with_cell_moduli(self.cell_moduli)
+        if self.gel_moduli != 1.0:
+            p = p.with_gel_moduli(self.gel_moduli)
+        return p
+
+
+@dataclasses.dataclass(frozen=True)
+class Method:
+    """A coupling method: scheme, acceleration (with options) and Robin coefficient on Gamma1."""
+
+    name: str
+    scheme: str
+    acceleration: dict
+    robin_factor: float = 1.0      # multiple of the device's default alpha_n
+
+    def config(self, with_cell: bool, max_iterations: int) -> dict:
+        base = coupling_config(self.scheme, self.acceleration["type"], with_cell=with_cell,
+                               max_iterations=max_iterations)
+        acc = dict(base["acceleration"])
+        acc.update({k: v for k, v in self.acceleration.items()})
+        base["acceleration"] = {k: v for k, v in acc.items()
+                                if k in cp.config.ACCELERATION_OPTIONS[acc["type"]]}
+        base.update(verbose=False, on_max_iterations="return", divergence_factor=1e4)
+        return base
+
+
+def study_cases(quick: bool = False) -> list[StudyCase]:
+    if quick:
+        return [StudyCase("shear", "shear"), StudyCase("normal", "normal"),
+                StudyCase("shear cell x10", "shear", cell_moduli=10.0),
+                StudyCase("normal cell x10", "normal", cell_moduli=10.0)]
+    out = []
+    for device in ("shear", "normal"):
+        out += [StudyCase(device, device),
+                StudyCase(f"{device} cell x0.1", device, cell_moduli=0.1),
+                StudyCase(f"{device} cell x10", device, cell_moduli=10.0),
+                StudyCase(f"{device} gel x0.1", device, gel_moduli=0.1),
+                StudyCase(f"{device} gel x10", device, gel_moduli=10.0)]
+    return out
+
+
+def study_methods(quick: bool = False) -> list[Method]:
+    iqn = {"type": "iqn-ils", "initial_relaxation": 0.5, "max_used_iterations": 100,
+           "filter": {"type": "qr2", "limit": 1e-3}}
+    if quick:
+        return [Method("none", "serial", {"type": "none"}),
+                Method("aitken", "serial", {"type": "aitken", "initial_relaxation": 0.5}),
+                Method("iqn-ils", "serial", iqn),
+                Method("iqn-ils", "parallel", iqn)]
+    accelerations = [
+        ("none", {"type": "none"}),
+        ("constant 0.5", {"type": "constant", "relaxation": 0.5}),
+        ("constant 0.2", {"type": "constant", "relaxation": 0.2}),
+        ("aitken", {"type": "aitken", "initial_relaxation": 0.5}),
+        ("iqn-ils", iqn),
+        ("iqn-ils no filter", {**iqn, "filter": {"type": "none"}}),
+        ("iqn-ils 10 kept", {**iqn, "max_used_iterations": 10}),
+        ("iqn-imvj", {"type": "iqn-imvj", "initial_relaxation": 0.5, "max_used_iterations": 100,
+                      "filter": {"type": "qr2", "limit": 1e-3}}),
+    ]
+    methods = [Method(name, scheme, acc) for scheme in ("serial", "parallel") for name, acc in accelerations]
+    # the partitioning variant: the Robin coefficient of the fluid's mass condition on Gamma1/Gamma3
+    for factor in (0.1, 10.0):
+        methods += [Method(f"iqn-ils alpha x{factor:g}", "serial", iqn, factor),
+                    Method(f"aitken alpha x{factor:g}", "serial", {"type": "aitken", "initial_relaxation": 0.5},
+                           factor)]
+    return methods
+
+
+def _flat_quantities(summary: dict) -> dict[str, float]:
+    out = {}
+    for block in ("gel", "cell"):
+        for key, value in (summary.get(block) or {}).items():
+            if key.endswith("_location"):
+                continue
+            if isinstance(value, dict):
+                out.update({f"{block}.{key}.{k}": v for k, v in value.items()})
+            elif isinstance(value, (list, tuple)):
+                out.update({f"{block}.{key}[{i}]": v for i, v in enumerate(value)})
+            else:
+                out[f"{block}.{key}"] = value
+    return out
+
+
+def quantity_error(summary: dict, reference: dict) -> float:
+    """Worst difference of the summary quantities, relative to each quantity's size.
+
+    Components of a vector (the centroid's [x, y]) are measured against the
+    vector's size, and the volume change against int |J - 1| (it is a sum of
+    compressions and dilatations that largely cancel).
+    """
+    a, b = _flat_quantities(summary), _flat_quantities(reference)
+    worst = 0.0
+    for key, ref in b.items():
+        base = key.split("[")[0]
+        scale = max(abs(v) for k, v in b.items() if k.split("[")[0] == base)
+        if "volume_change" in key and "magnitude" not in key and "share" not in key:
+            scale = max(scale, b["gel.local_volume_change_magnitude"] * abs(ref) / max(
+                abs(b["gel.volume_change_below_gamma1"]), 1e-300) if key.startswith("gel.relative")
+                else b["gel.local_volume_change_magnitude"])
+        if key.endswith("share_of_cell"):
+            scale = max(abs(ref), b["gel.local_volume_change_magnitude"] / max(
+                abs(b["gel.volume_change_below_gamma1"]), 1e-300))
+        if scale > 0:
+            worst = max(worst, abs(a[key] - ref) / scale)
+    return worst
+
+
+def _classify(result: cp.CouplingResult | None, error: Exception | None) -> str:
+    if error is not None:
+        return "diverged"
+    if result.converged:
+        return "converged"
+    history = np.nanmax(np.array(list(result.residual_history.values()), dtype=float), axis=0)
+    tail = history[-10:]
+    if tail.size >= 10 and tail[-1] > 0.1 * tail[0]:
+        return "stagnated"
+    return "max_iterations"
+
+
+def _diverged_data(message: str) -> str | None:
+    """The data whose residual blew up, or the participant that failed (from the error message)."""
+    m = re.search(r"residual of data '([^']+)'", message)
+    if m:
+        return m.group(1)
+    m = re.search(r"participant '([^']+)' failed", message)
+    worst = re.search(r"residual norms of '([^']+)'", message)
+    if m:
+        return f"{m.group(1)} solver failed" + (f"; worst {worst.group(1)}" if worst else "")
+    return None
+
+
+def run_one(case: StudyCase, method: Method, mesh_size: float, reference, max_iterations: int,
+            comm: MPI.Comm) -> dict:
+    """One partitioned solve of the study; a record of the outcome."""
+    params = case.parameters(mesh_size)
+    device = Device(params, comm, robin_coefficient=method.robin_factor * default_robin_coefficient(params))
+    config = method.config(True, max_iterations)
+    t0 = time.perf_counter()
+    result, error = None, None
+    try:
+        result = device.solve(config, verbose=False)
+    except cp.CouplingError as exc:
+        error, result = exc, exc.result
+    wall = time.perf_counter() - t0
+    status = _classify(result if error is None else None, error)
+    history = {k: [float(x) for x in v] for k, v in result.residual_history.items()}
+    final = max((v[-1] for v in history.values() if v), default=float("nan"))
+    record = {"case": case.name, "scheme": method.scheme, "acceleration": method.name,
+              "robin_factor": method.robin_factor, "converged": status == "converged", "status": status,
+              "reason": str(error) if error is not None else result.reason,
+              "diverged_data": _diverged_data(str(error)) if error is not None else None,
+              "iterations": int(result.iterations), "participant_solves": int(result.iterations) * 3,
+              "wall_time": wall, "final_residual": final, "error_quantities": None, "error_fields": None,
+              "history": list(np.nanmax(np.array(list(history.values()), dtype=float), axis=0))
+              if history and result.iterations else []}
+    if status == "converged":
+        fields = fields_from_device(device)
+        record["error_quantities"] = quantity_error(summarize(fields), reference.summary)
+        record["error_fields"] = max(relative_differences(fields, reference.fields).values())
+    return record
+
+
+def markdown_table(records: list[dict], references: dict[str, dict] | None = None) -> str:
+    """The study as a Markdown table (one row per run)."""
+    lines = ["| case | scheme | acceleration | outcome | iterations | solves | wall [s] | "
+             "error vs monolithic | final residual |",
+             "|---|---|---|---|---:|---:|---:|---:|---:|"]
+    for r in records:
+        err = "-" if r["error_quantities"] is None else f"{max(r['error_quantities'], r['error_fields']):.1e}"
+        outcome = r["status"] + (f" ({r['diverged_data']})" if r.get("diverged_data") else "")
+        lines.append(f"| {r['case']} | {r['scheme']} | {r['acceleration']} | {outcome} | {r['iterations']} | "
+                     f"{r['participant_solves']} | {r['wall_time']:.2f} | {err} | {r['final_residual']:.1e} |")
+    if references:
+        lines += ["", "| case | monolithic Newton iterations | monolithic wall [s] | best method | "
+                  "iterations | wall [s] |", "|---|---:|---:|---|---:|---:|"]
+        for case, ref in references.items():
+            ok = [r for r in records if r["case"] == case and r["converged"]]
+            best = min(ok, key=lambda r: r["wall_time"]) if ok else None
+            name = f"{best['scheme']} {best['acceleration']}" if best else "-"
+            lines.append(f"| {case} | {ref['newton_iterations']} | {ref['wall_time']:.2f} | {name} | "
+                         f"{best['iterations'] if best else '-'} | "
+                         f"{best['wall_time'] if best else float('nan'):.2f} |")
+    return "\n".join(lines)
+
+
+def _plot(path: str, records: list[dict], cases: list[StudyCase]) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    ncol = min(len(cases), 2)
+    nrow = int(np.ceil(len(cases) / ncol))
+    fig, axes = plt.subplots(nrow, ncol, figsize=(7 * ncol, 4 * nrow), squeeze=False)
+    for ax, case in zip(axes.ravel(), cases):
+        for r in records:
+            if r["case"] != case.name or not r["history"]:
+                continue
+            h = np.maximum(np.array(r["history"], dtype=float), 1e-16)
+            ax.semilogy(np.arange(1, len(h) + 1), h, "-" if r["converged"] else ":",
+                        label=f"{r['scheme']} {r['acceleration']}", lw=1)
+        ax.axhline(1e-10, color="k", lw=0.5)
+        ax.set_title(case.name)
+        ax.set_xlabel("coupling iteration")
+        ax.set_ylabel("worst relative residual")
+        ax.set_ylim(1e-14, 1e6)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=6, ncol=2)
+    for ax in axes.ravel()[len(cases):]:
+        ax.axis("off")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def run_study(out: str | None, *, quick: bool = False, mesh_size: float | None = None,
+              max_iterations: int = 150, comm: MPI.Comm = MPI.COMM_WORLD,
+              log: typing.Callable[[str], None] | None = None) -> dict:
+    """Run the study; write study.csv/json/md and study_convergence.png into ``out``."""
+    mesh_size = mesh_size if mesh_size is not None else (3.0 if quick else 2.0)
+    log = log or ((lambda msg: print(msg, flush=True)) if comm.rank == 0 else (lambda msg: None))
+    cases, methods = study_cases(quick), study_methods(quick)
+    records, references = [], {}
+    for case in cases:
+        t0 = time.perf_counter()
+        ref = solve_monolithic(case.parameters(mesh_size), comm, checks=False)
+        references[case.name] = {"newton_iterations": ref.summary["monolithic"]["newton_iterations"],
+                                 "wall_time": time.perf_counter() - t0,
+                                 "solve_time": ref.summary["timing"]["solve"]}
+        for method in methods:
+            r = run_one(case, method, mesh_size, ref, max_iterations, comm)
+            records.append(r)
+            log(f"{case.name:18s} {method.scheme:8s} {method.name:20s} {r['status']:14s} "
+                f"{r['iterations']:4d} it  {r['wall_time']:6.2f} s  "
+                f"error {r['error_quantities'] if r['error_quantities'] is not None else float('nan'):.1e}")
+    table = markdown_table(records, references)
+    study = {"quick": quick, "mesh_size": mesh_size, "max_iterations": max_iterations, "records": records,
+             "monolithic": references, "table": table}
+    if out is not None:
+        with atomic_directory(out, comm) as tmp:
+            write_json_file(os.path.join(tmp, "study.json"), study, comm)
+            if comm.rank == 0:
+                keys = [k for k in records[0] if k != "history"]
+                with open(os.path.join(tmp, "study.csv"), "w", newline="") as f:
+                    w = csv.DictWriter(f, fieldnames=keys, extrasaction="ignore")
+                    w.writeheader()
+                    w.writerows(records)
+                with open(os.path.join(tmp, "study.md"), "w") as f:
+                    f.write(table + "\n")
+                _plot(os.path.join(tmp, "study_convergence.png"), records, cases)
+    return study
+
+
+README_BEGIN = "<!-- coupling-study:begin (generated by examples/coupling_study.py --quick --update-readme) -->"
+README_END = "<!-- coupling-study:end -->"
+
+
+def update_readme(path: str, table: str) -> None:
+    """Replace the study table between the markers in README.md."""
+    with open(path) as f:
+        text = f.read()
+    if README_BEGIN not in text or README_END not in text:
+        raise ValueError(f"{path} has no coupling-study markers")
+    head, rest = text.split(README_BEGIN, 1)
+    _, tail = rest.split(README_END, 1)
+    with open(path, "w") as f:
+        f.write(head + README_BEGIN + "\n" + table + "\n" + README_END + tail)
