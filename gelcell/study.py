@@ -237,6 +237,33 @@ def markdown_table(records: list[dict], references: dict[str, dict] | None = Non
     return "\n".join(lines)
 
 
+def iteration_matrix(records: list[dict]) -> str:
+    """Iterations to convergence, one row per method and one column per case (Markdown).
+
+    Entries that did not converge show why: ``div`` (diverged), ``stag``
+    (stagnated) or ``max`` (iteration limit while still decreasing).
+    """
+    cases, methods = [], []
+    for r in records:
+        if r["case"] not in cases:
+            cases.append(r["case"])
+        key = (r["scheme"], r["acceleration"])
+        if key not in methods:
+            methods.append(key)
+    short = {"diverged": "div", "stagnated": "stag", "max_iterations": "max"}
+    lines = ["| scheme | acceleration | " + " | ".join(cases) + " |",
+             "|---|---|" + "---:|" * len(cases)]
+    for scheme, acc in methods:
+        cells = []
+        for case in cases:
+            r = next((x for x in records if x["case"] == case and x["scheme"] == scheme
+                      and x["acceleration"] == acc), None)
+            cells.append("" if r is None else str(r["iterations"]) if r["converged"]
+                         else f"{short.get(r['status'], r['status'])} ({r['iterations']})")
+        lines.append(f"| {scheme} | {acc} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def _plot(path: str, records: list[dict], cases: list[StudyCase]) -> None:
     import matplotlib
     matplotlib.use("Agg")
@@ -244,12 +271,16 @@ def _plot(path: str, records: list[dict], cases: list[StudyCase]) -> None:
     ncol = min(len(cases), 2)
     nrow = int(np.ceil(len(cases) / ncol))
     fig, axes = plt.subplots(nrow, ncol, figsize=(7 * ncol, 4 * nrow), squeeze=False)
+    methods = list(dict.fromkeys((r["scheme"], r["acceleration"]) for r in records))
+    colors = plt.get_cmap("tab20")
     for ax, case in zip(axes.ravel(), cases):
         for r in records:
             if r["case"] != case.name or not r["history"]:
                 continue
             h = np.maximum(np.array(r["history"], dtype=float), 1e-16)
-            ax.semilogy(np.arange(1, len(h) + 1), h, "-" if r["converged"] else ":",
+            i = methods.index((r["scheme"], r["acceleration"]))
+            # colour: method; solid: converged, dotted: did not
+            ax.semilogy(np.arange(1, len(h) + 1), h, "-" if r["converged"] else ":", color=colors(i % 20),
                         label=f"{r['scheme']} {r['acceleration']}", lw=1)
         ax.axhline(1e-10, color="k", lw=0.5)
         ax.set_title(case.name)
@@ -298,7 +329,8 @@ def run_study(out: str | None, *, quick: bool = False, mesh_size: float | None =
                     w.writeheader()
                     w.writerows(records)
                 with open(os.path.join(tmp, "study.md"), "w") as f:
-                    f.write(table + "\n")
+                    f.write("## Iterations to a relative residual of 1e-10\n\n" + iteration_matrix(records)
+                            + "\n\n## Every run\n\n" + table + "\n")
                 _plot(os.path.join(tmp, "study_convergence.png"), records, cases)
     return study
 
