@@ -25,7 +25,7 @@ $(STAMP): pyproject.toml scripts/ensure-system-packages $(wildcard */__init__.py
 	touch $(STAMP)
 
 run: setup
-	$(VENV)/bin/gelcell run shear --out $(RUN_OUT)
+	$(VENV)/bin/gelcell run shear --compare-no-cell --out $(RUN_OUT)
 
 test: setup
 	$(PY) -m pytest -q -ra --durations=15
