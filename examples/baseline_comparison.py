@@ -17,7 +17,8 @@ from mpi4py import MPI
 
 from gelcell.parameters import CaseParameters
 from gelcell.runner import solve_monolithic, solve_partitioned
-from gelcell.study import _flat_quantities, quantity_error
+from gelcell.results import flat_quantities
+from gelcell.study import quantity_error
 
 
 def main(argv=None):
@@ -33,7 +34,7 @@ def main(argv=None):
         runs = {"monolithic": solve_monolithic(p, comm).summary}
         for scheme, acc in (("serial", "iqn-ils"), ("serial", "aitken"), ("parallel", "iqn-ils")):
             runs[f"{scheme} {acc}"] = solve_partitioned(p, scheme, acc, comm=comm, verbose=False).summary
-        out[case] = {k: {"quantities": _flat_quantities(v), "timing": v["timing"], "mesh": v["mesh"],
+        out[case] = {k: {"quantities": flat_quantities(v), "timing": v["timing"], "mesh": v["mesh"],
                          "iterations": (v["coupling"] or {}).get("iterations"),
                          "monolithic": v.get("monolithic"),
                          "error_vs_monolithic": quantity_error(v, runs["monolithic"]),

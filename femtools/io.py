@@ -17,6 +17,28 @@ __all__ = ["atomic_path", "write_json", "atomic_directory"]
 
 
 @contextlib.contextmanager
+def _commit(tmp: str, path: str, comm: MPI.Comm, directory: bool):
+    """Move ``tmp`` to ``path`` if the block succeeded on every rank, else delete it."""
+    ok = False
+    try:
+        yield
+        ok = True
+    finally:
+        ok = comm.allreduce(ok, op=MPI.LAND)
+        comm.Barrier()
+        if comm.rank == 0:
+            if ok:
+                os.chmod(tmp, 0o755 if directory else 0o644)  # mkdtemp/mkstemp make them private
+                if directory and os.path.isdir(path):
+                    shutil.rmtree(path)
+                os.replace(tmp, path)
+            elif directory:
+                shutil.rmtree(tmp, ignore_errors=True)
+            elif os.path.exists(tmp):
+                os.remove(tmp)
+
+
+@contextlib.contextmanager
 def atomic_path(path: str, comm: MPI.Comm = MPI.COMM_WORLD):
     """Yield a temporary path next to ``path``; rename it to ``path`` on success.
 
@@ -32,19 +54,8 @@ def atomic_path(path: str, comm: MPI.Comm = MPI.COMM_WORLD):
                                    dir=os.path.dirname(path))
         os.close(fd)
     tmp = comm.bcast(tmp, root=0)
-    ok = False
-    try:
+    with _commit(tmp, path, comm, directory=False):
         yield tmp
-        ok = True
-    finally:
-        ok = comm.allreduce(ok, op=MPI.LAND)
-        comm.Barrier()
-        if comm.rank == 0:
-            if ok:
-                os.chmod(tmp, 0o644)  # mkstemp makes it private
-                os.replace(tmp, path)
-            elif os.path.exists(tmp):
-                os.remove(tmp)
 
 
 @contextlib.contextmanager
@@ -56,21 +67,8 @@ def atomic_directory(path: str, comm: MPI.Comm = MPI.COMM_WORLD):
         os.makedirs(os.path.dirname(path), exist_ok=True)
         tmp = tempfile.mkdtemp(prefix=".tmp-" + os.path.basename(path) + "-", dir=os.path.dirname(path))
     tmp = comm.bcast(tmp, root=0)
-    ok = False
-    try:
+    with _commit(tmp, path, comm, directory=True):
         yield tmp
-        ok = True
-    finally:
-        ok = comm.allreduce(ok, op=MPI.LAND)
-        comm.Barrier()
-        if comm.rank == 0:
-            if ok:
-                os.chmod(tmp, 0o755)  # mkdtemp makes it private
-                if os.path.isdir(path):
-                    shutil.rmtree(path)
-                os.replace(tmp, path)
-            else:
-                shutil.rmtree(tmp, ignore_errors=True)
 
 
 def _jsonable(obj):

@@ -98,6 +98,31 @@ class DirectSolver:
             raise RuntimeError(f"{self.name}: linear solve failed (PETSc KSP reason {reason})")
 
 
+def _assemble_and_factorize(A: PETSc.Mat, form, bcs, solver: DirectSolver, stats: SolverStats,
+                            sub=None) -> PETSc.Mat:
+    """Assemble ``form`` into ``A`` (Dirichlet rows: identity), factorise it; returns the factorised matrix.
+
+    ``sub = (IS, previous submatrix)`` factorises only the rows and columns in the IS.
+    """
+    t0 = time.perf_counter()
+    A.zeroEntries()
+    fem_petsc.assemble_matrix(A, form, bcs=bcs)
+    A.assemble()
+    operator = A
+    if sub is not None:
+        rows, previous = sub
+        operator = A.createSubMatrix(rows, rows, submat=previous)
+        solver.set_operator(operator, reset=previous is None)  # the KSP saw the full-size matrix
+    else:
+        solver.set_operator(A)
+    stats["assemble_time"] += time.perf_counter() - t0
+    t0 = time.perf_counter()
+    solver.factorize()
+    stats["factor_time"] += time.perf_counter() - t0
+    stats["factorizations"] += 1
+    return operator
+
+
 def direct_solver(comm: MPI.Comm, A: PETSc.Mat, name: str, petsc_options: dict | None = None) -> DirectSolver:
     """A factorised :class:`DirectSolver` for ``A``."""
     solver = DirectSolver(comm, name, petsc_options)
@@ -135,16 +160,7 @@ class LinearSolver:
 
     def update_operator(self) -> None:
         """Re-assemble the matrix and factorise it."""
-        t0 = time.perf_counter()
-        self.A.zeroEntries()
-        fem_petsc.assemble_matrix(self.A, self.a, bcs=self.bcs)
-        self.A.assemble()
-        self.solver.set_operator(self.A)
-        self.stats["assemble_time"] += time.perf_counter() - t0
-        t0 = time.perf_counter()
-        self.solver.factorize()
-        self.stats["factor_time"] += time.perf_counter() - t0
-        self.stats["factorizations"] += 1
+        _assemble_and_factorize(self.A, self.a, self.bcs, self.solver, self.stats)
         self._operator_ready = True
 
     def assemble_rhs(self) -> PETSc.Vec:
@@ -224,6 +240,7 @@ class NewtonSolver:
         self.solver = DirectSolver(comm, name, petsc_options)
         self.ksp = self.solver.ksp
         self._have_jacobian = False
+        self._load_dofs, self._load_values = np.empty(0, dtype=np.int32), np.empty(0)
 
     @property
     def num_active_dofs(self) -> int:
@@ -237,30 +254,32 @@ class NewtonSolver:
         self._have_jacobian = False
 
     def _assemble_jacobian(self) -> None:
-        t0 = time.perf_counter()
-        self.A.zeroEntries()
-        fem_petsc.assemble_matrix(self.A, self.J, bcs=self.bcs)
-        self.A.assemble()
+        sub = None if self._active is None else (self._active, self._A_active)
+        operator = _assemble_and_factorize(self.A, self.J, self.bcs, self.solver, self.stats, sub)
         if self._active is not None:
-            first = self._A_active is None
-            self._A_active = self.A.createSubMatrix(self._active, self._active, submat=self._A_active)
-            self.solver.set_operator(self._A_active, reset=first)
-        else:
-            self.solver.set_operator(self.A)
-        self.stats["assemble_time"] += time.perf_counter() - t0
-        t0 = time.perf_counter()
-        self.solver.factorize()
-        self.stats["factor_time"] += time.perf_counter() - t0
-        self.stats["factorizations"] += 1
+            self._A_active = operator
         self._have_jacobian = True
 
+    def set_nodal_loads(self, dofs: np.ndarray, values: np.ndarray) -> None:
+        """Loads applied as nodal values: subtracted from the residual at these local *owned* dofs.
+
+        For data that arrive as consistent nodal forces (e.g. the cell's
+        reaction on Gamma2) rather than as a field to integrate.
+        """
+        self._load_dofs = np.asarray(dofs, dtype=np.int32)
+        self._load_values = np.asarray(values, dtype=float)
+
     def residual(self) -> PETSc.Vec:
-        """``F(u)`` with Dirichlet rows holding ``u - g`` (the Newton convention)."""
+        """``F(u)`` - nodal loads, with Dirichlet rows holding ``u - g`` (the Newton convention)."""
         with self.b.localForm() as loc:
             loc.set(0.0)
         fem_petsc.assemble_vector(self.b, self.F)
         fem_petsc.apply_lifting(self.b, [self.J], bcs=[self.bcs], x0=[self.u.vector], scale=-1.0)
         self.b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        if self._load_dofs.size:
+            # after the ghost update, so that each global dof receives its load exactly once
+            with self.b.localForm() as loc:
+                loc.array[self._load_dofs] -= self._load_values
         fem_petsc.set_bc(self.b, self.bcs, self.u.vector, -1.0)
         return self.b
 

@@ -76,32 +76,6 @@ DEFAULT_PETSC_OPTIONS = {"mat_mumps_icntl_8": 8, "mat_mumps_icntl_14": 200}
 _FIELD_INDEX = {name: i for i, name in enumerate(FIELDS)}
 
 
-class _GelNewton(NewtonSolver):
-    """``NewtonSolver`` whose residual also carries nodal loads on the mixture equation.
-
-    The loads are given as (owned dof, value) pairs of the mixed space and are
-    subtracted after the ghost update (so each global dof receives its load
-    exactly once) and before the Dirichlet rows are set.
-    """
-
-    def __init__(self, *args, **kwargs):
-        super().__init__(*args, **kwargs)
-        self.load_dofs = np.empty(0, dtype=np.int32)
-        self.load_values = np.empty(0)
-
-    def residual(self) -> PETSc.Vec:
-        with self.b.localForm() as loc:
-            loc.set(0.0)
-        fem_petsc.assemble_vector(self.b, self.F)
-        fem_petsc.apply_lifting(self.b, [self.J], bcs=[self.bcs], x0=[self.u.vector], scale=-1.0)
-        self.b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        if self.load_dofs.size:
-            with self.b.localForm() as loc:
-                loc.array[self.load_dofs] -= self.load_values
-        fem_petsc.set_bc(self.b, self.bcs, self.u.vector, -1.0)
-        return self.b
-
-
 def _as_tags(tags, what: str) -> tuple[int, ...]:
     """Normalise an int or an iterable of ints to a tuple of ints."""
     if isinstance(tags, (int, np.integer)):
@@ -203,7 +177,7 @@ class PoroelasticGelSolver(FieldSolver):
         self.bcs = self._build_bcs(no_slip, symmetry, dirichlet)
         self.residual_form = F
         options = dict(DEFAULT_PETSC_OPTIONS, **(petsc_options or {}))
-        self._newton = _GelNewton(F, self.state, self.bcs, name=name, rtol=newton_rtol, reuse="adaptive",
+        self._newton = NewtonSolver(F, self.state, self.bcs, name=name, rtol=newton_rtol, reuse="adaptive",
                                   petsc_options=options)
         self._build_postprocessing()
         self.timing["setup"] = time.perf_counter() - t0
@@ -363,8 +337,8 @@ class PoroelasticGelSolver(FieldSolver):
     def _solve(self) -> None:
         dofs = [d["dofs"].ravel() for d in self._cell.values()]
         vals = [d["force"][d["rows"]].ravel() for d in self._cell.values()]
-        self._newton.load_dofs = np.hstack(dofs).astype(np.int32) if dofs else np.empty(0, np.int32)
-        self._newton.load_values = np.hstack(vals) if vals else np.empty(0)
+        self._newton.set_nodal_loads(np.hstack(dofs).astype(np.int32) if dofs else np.empty(0, np.int32),
+                                     np.hstack(vals) if vals else np.empty(0))
         its = self._newton.solve()
         self.timing["newton_iterations"] += its
         log.debug("%s: Newton converged in %d iterations, corrections %s", self.name, its,

@@ -48,7 +48,7 @@ from gelcell.geometry import Tag
 from gelcell.parameters import CaseParameters
 
 __all__ = ["DeviceFields", "fields_from_device", "fields_from_monolithic", "summarize",
-           "gamma_profiles", "relative_differences"]
+           "gamma_profiles", "relative_differences", "flat_quantities"]
 
 
 @dataclasses.dataclass
@@ -314,4 +314,23 @@ def relative_differences(a: DeviceFields, b: DeviceFields) -> dict[str, float]:
         diff.x.array[:] -= fb.x.array
         ref = _l2(fb, fb.function_space.mesh.comm)
         out[name] = _l2(diff, fb.function_space.mesh.comm) / ref if ref > 0 else 0.0
+    return out
+
+
+def flat_quantities(summary: dict) -> dict[str, float]:
+    """Every scalar of a summary's ``gel``/``cell`` blocks as ``{"cell.von_mises_strain[1]": ...}``.
+
+    Locations are left out; vectors are split by index and dicts by key.
+    """
+    out = {}
+    for block in ("gel", "cell"):
+        for key, value in (summary.get(block) or {}).items():
+            if key.endswith("_location"):
+                continue
+            if isinstance(value, dict):
+                out.update({f"{block}.{key}.{k}": v for k, v in value.items()})
+            elif isinstance(value, (list, tuple)):
+                out.update({f"{block}.{key}[{i}]": v for i, v in enumerate(value)})
+            else:
+                out[f"{block}.{key}"] = value
     return out

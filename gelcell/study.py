@@ -33,7 +33,7 @@ from femtools.io import atomic_directory
 from gelcell.device import Device, coupling_config, default_robin_coefficient
 from gelcell.output import write_json_file
 from gelcell.parameters import CaseParameters
-from gelcell.results import fields_from_device, relative_differences, summarize
+from gelcell.results import fields_from_device, flat_quantities, relative_differences, summarize
 from gelcell.runner import solve_monolithic
 
 __all__ = ["Method", "StudyCase", "study_cases", "study_methods", "run_study", "markdown_table"]
@@ -120,21 +120,6 @@ def study_methods(quick: bool = False) -> list[Method]:
     return methods
 
 
-def _flat_quantities(summary: dict) -> dict[str, float]:
-    out = {}
-    for block in ("gel", "cell"):
-        for key, value in (summary.get(block) or {}).items():
-            if key.endswith("_location"):
-                continue
-            if isinstance(value, dict):
-                out.update({f"{block}.{key}.{k}": v for k, v in value.items()})
-            elif isinstance(value, (list, tuple)):
-                out.update({f"{block}.{key}[{i}]": v for i, v in enumerate(value)})
-            else:
-                out[f"{block}.{key}"] = value
-    return out
-
-
 def quantity_error(summary: dict, reference: dict) -> float:
     """Worst difference of the summary quantities, relative to each quantity's size.
 
@@ -142,7 +127,7 @@ def quantity_error(summary: dict, reference: dict) -> float:
     vector's size, and the volume change against int |J - 1| (it is a sum of
     compressions and dilatations that largely cancel).
     """
-    a, b = _flat_quantities(summary), _flat_quantities(reference)
+    a, b = flat_quantities(summary), flat_quantities(reference)
     worst = 0.0
     for key, ref in b.items():
         base = key.split("[")[0]

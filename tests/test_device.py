@@ -15,7 +15,7 @@ from mpi_run import run_mpi
 
 from gelcell.checks import interface_residuals
 from gelcell.parameters import CaseParameters
-from gelcell.results import relative_differences
+from gelcell.results import flat_quantities, relative_differences
 from gelcell.runner import report, solve_monolithic, solve_partitioned
 
 MESH = 3.0   # test-sized: every element size x3 (16 edges around the cell)
@@ -26,22 +26,6 @@ def _params(case: str, **kw) -> CaseParameters:
     if "ca" in kw:
         p = p.with_ca(kw["ca"])
     return p
-
-
-def _quantities(summary: dict) -> dict[str, float]:
-    """Every scalar of the summary's quantities, flattened (paper units)."""
-    out = {}
-    for block in ("gel", "cell"):
-        for key, value in (summary[block] or {}).items():
-            if key.endswith("_location"):
-                continue
-            if isinstance(value, dict):
-                out.update({f"{block}.{key}.{k}": v for k, v in value.items()})
-            elif isinstance(value, (list, tuple)):
-                out.update({f"{block}.{key}[{i}]": v for i, v in enumerate(value)})
-            else:
-                out[f"{block}.{key}"] = value
-    return out
 
 
 @pytest.fixture(scope="module", params=["shear", "normal"])
@@ -59,7 +43,7 @@ def test_partitioned_equals_monolithic(runs, acceleration):
     case, mono, part = runs
     run = part[acceleration]
     assert run.summary["coupling"]["converged"]
-    qm, qp = _quantities(mono.summary), _quantities(run.summary)
+    qm, qp = flat_quantities(mono.summary), flat_quantities(run.summary)
     assert qm.keys() == qp.keys()
     for key in qm:
         # components of a vector (e.g. the centroid's y on a symmetry line, ~0) are compared
@@ -112,7 +96,7 @@ def test_linear_in_ca_at_small_strain(case):
     """
     a = solve_partitioned(_params(case, ca=3e-10), verbose=False, checks=False).summary
     b = solve_partitioned(_params(case, ca=1e-8), verbose=False, checks=False).summary
-    qa, qb = _quantities(a), _quantities(b)
+    qa, qb = flat_quantities(a), flat_quantities(b)
     ratio = 1e-8 / 3e-10
     for key in qa:
         if key == "gel.max_interstitial_speed":
