@@ -69,6 +69,13 @@ class NeoHookeanCellSolver(FieldSolver):
         displacement_scale: displacement unit ``d`` in units of L0, > 0.
         interfaces: ``{name: tags}``; Dirichlet-displacement interfaces (Gamma2).
             Input ``"displacement"`` (N, 2) in units of d; output ``"force"``.
+        robin_interfaces: ``{name: (tags, kappa)}``; Robin interfaces: the
+            surroundings act as the given nodal forces f* plus springs of
+            stiffness kappa (units s / L0) towards a displacement u*:
+            int P/s : grad v dX + int kappa (u - u*) . v dS = f*(v).  Inputs
+            ``"displacement"`` u* and ``"force"`` f* (nodal forces ON the
+            cell, units s L0); outputs ``"force"`` (as for ``interfaces``) and
+            ``"displacement"``.  kappa > 0 also holds the rigid modes.
         symmetry: ``[(tags, component)]``: u[component] = 0 on those facets
             (a flat edge of the cell on a symmetry line; component 0 or 1).
         dirichlet: ``[(tags, value)]`` or ``[(tags, value, component)]``:
@@ -129,6 +136,7 @@ class NeoHookeanCellSolver(FieldSolver):
 
     def __init__(self, mesh, facet_tags, *, mu: float, lmbda: float, stress_scale: float = 1.0,
                  displacement_scale: float = 1.0, interfaces: dict[str, Tags] | None = None,
+                 robin_interfaces: dict[str, tuple[Tags, float]] | None = None,
                  symmetry: typing.Sequence = (), dirichlet: typing.Sequence = (),
                  tractions: typing.Sequence = (), remove_rigid_modes: bool = False,
                  name: str = "cell", quadrature_degree: int = 4, petsc_options: dict | None = None,
@@ -139,10 +147,15 @@ class NeoHookeanCellSolver(FieldSolver):
         _validate_parameters(mu, lmbda, stress_scale, displacement_scale, quadrature_degree,
                              newton_rtol, reuse, rigid_mode_rtol)
         interfaces = dict(interfaces or {})
-        if remove_rigid_modes and (interfaces or symmetry or dirichlet):
+        robin_interfaces = dict(robin_interfaces or {})
+        clash = set(interfaces) & set(robin_interfaces)
+        if clash:
+            raise ValueError(f"{self.name}: interface names used both as Dirichlet and Robin interfaces: "
+                             f"{sorted(clash)}")
+        if remove_rigid_modes and (interfaces or robin_interfaces or symmetry or dirichlet):
             raise ValueError(f"{self.name}: remove_rigid_modes=True is for pure traction problems; "
                              f"it cannot be combined with interfaces, symmetry or dirichlet")
-        if not (remove_rigid_modes or interfaces or symmetry or dirichlet):
+        if not (remove_rigid_modes or interfaces or robin_interfaces or symmetry or dirichlet):
             raise ValueError(f"{self.name}: no displacement is prescribed anywhere; give interfaces, "
                              f"symmetry or dirichlet, or remove_rigid_modes=True for a pure traction load")
         self.mesh, self.facet_tags = mesh, facet_tags
@@ -173,8 +186,26 @@ class NeoHookeanCellSolver(FieldSolver):
             self._tractions.append((tags, t))
             term = ufl.inner(t, v) * self.ds(tuple(tags))
             external = term if external is None else external + term
+        # Robin interfaces: int kappa (u - u*) . v dS on the interface, nodal forces f* as loads
+        self._robin: dict[str, dict] = {}
+        for iname, entry in robin_interfaces.items():
+            tags, kappa = _unpack(entry, 2, f"robin_interfaces[{iname!r}]")
+            tags = _tag_list(tags)
+            self._facets(tags, f"robin_interfaces[{iname!r}]")
+            if not (np.isfinite(kappa) and kappa > 0):
+                raise ValueError(f"{self.name}: robin_interfaces[{iname!r}]: kappa = {kappa!r} must be > 0")
+            target = fem.Function(self.V, name=f"u_{iname}")
+            term = c(kappa) * ufl.inner(self.u - target, v) * self.ds(tuple(tags))
+            internal_robin = term if not self._robin else internal_robin + term
+            nodes = InterfaceNodes(self.V, facet_tags, tags)
+            owned_rows = nodes.owned
+            self._robin[iname] = {"target": target, "nodes": nodes, "loads": np.zeros((nodes.size, 2)),
+                                  "dofs": nodes.dofs()[owned_rows], "rows": nodes.index[owned_rows]}
+            self._add_interface(iname, nodes, {"displacement": 2, "force": 2})
+        if self._robin:
+            F = F + internal_robin
         if external is not None:
-            F = internal - external
+            F = F - external
             self._external_form = fem.form(external)
         else:
             self._external_form = None
@@ -296,6 +327,17 @@ class NeoHookeanCellSolver(FieldSolver):
 
     # -- FieldSolver interface ------------------------------------------------
     def _set_input(self, interface: str, key: str, values: np.ndarray) -> None:
+        if interface in self._robin:
+            r = self._robin[interface]
+            if key == "displacement":
+                r["nodes"].to_function(values, r["target"])
+                r["target"].x.scatter_forward()
+            else:
+                r["loads"] = values
+                dofs = np.hstack([x["dofs"].ravel() for x in self._robin.values()])
+                loads = np.hstack([x["loads"][x["rows"]].ravel() for x in self._robin.values()])
+                self._newton.set_nodal_loads(dofs, loads)
+            return
         g = self._interface_bc_values[interface]
         self.interface_nodes(interface).to_function(values, g)
         g.x.scatter_forward()
@@ -312,9 +354,12 @@ class NeoHookeanCellSolver(FieldSolver):
         nodes = self.interface_nodes(name)
         R = assemble_residual_vector(self._internal_form)
         try:
-            return {"force": nodes.from_array(R.array)}
+            out = {"force": nodes.from_array(R.array)}
         finally:
             R.destroy()
+        if name in self._robin:
+            out["displacement"] = nodes.from_function(self.u)
+        return out
 
     # -- load updates (tests, load stepping) ------------------------------------
     def set_dirichlet(self, index: int, value) -> None:

@@ -168,6 +168,9 @@ def _add_solver_arguments(p: argparse.ArgumentParser) -> None:
                    help="coupling scheme: serial (Gauss-Seidel: fluid, gel, cell) or parallel (Jacobi)")
     g.add_argument("--acceleration", choices=ACCELERATIONS, default="iqn-ils",
                    help="coupling acceleration (default iqn-ils)")
+    g.add_argument("--gamma2", choices=("dirichlet", "robin"), default="dirichlet",
+                   help="the cell's condition on Gamma2: the gel's displacement (Dirichlet-Neumann, default) "
+                        "or the gel's force plus springs towards its displacement (Robin-Neumann)")
     g.add_argument("--monolithic", action="store_true",
                    help="solve the monolithic reference (all fields in one Newton system) instead")
     g.add_argument("--quiet", action="store_true", help="no per-iteration coupling progress")
@@ -188,7 +191,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         extra["summary_no_cell.json"] = report(ref.summary, params.replace(with_cell=False))
     run_case(params, args.out, monolithic=args.monolithic, scheme=args.scheme, acceleration=args.acceleration,
              comm=comm, verbose=not args.quiet, figures=not args.no_figures, overlay_profiles=overlay,
-             extra_json=extra)
+             extra_json=extra, gamma2=args.gamma2)
     return 0
 
 
@@ -214,7 +217,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     cases = [sweep_parameters(base, args.param, v) for v in args.values]   # validate all first
     from gelcell.sweep import run_sweep
     run_sweep(cases, args.param, args.values, args.out, monolithic=args.monolithic, scheme=args.scheme,
-              acceleration=args.acceleration, verbose=not args.quiet)
+              acceleration=args.acceleration, verbose=not args.quiet, gamma2=args.gamma2)
     return 0
 
 

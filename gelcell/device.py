@@ -83,7 +83,20 @@ def default_robin_coefficient(params: CaseParameters) -> float:
     return float(factor * viscosity * ph.xi * ph.phi_s0 * depth / (1.0 - ph.phi_s0))
 
 
-def coupling_data(boundaries: DeviceBoundaries) -> list[cp.Data]:
+def default_gamma2_coefficient(params: CaseParameters) -> float:
+    """kappa = 2 (d/s) phi_s0 / r_c: the drained network's stiffness seen from the cell's surface.
+
+    For a circular hole of radius r_c in an elastic plane of shear modulus
+    mu_m, a radial surface displacement u_r needs the traction 2 mu_m u_r / r_c;
+    the drained network has mu_m = phi_s0 mu_s.  A Robin coefficient equal to
+    the Neumann side's stiffness makes the Robin-Neumann iteration contract
+    whatever the cell's stiffness (docs/partitioning.md).
+    """
+    radius = 0.5 * params.geometry.cell_diameter
+    return float(2.0 * params.displacement_scale / params.stress_scale * params.physics.phi_s0 / radius)
+
+
+def coupling_data(boundaries: DeviceBoundaries, gamma2: str = "dirichlet") -> list[cp.Data]:
     """The coupling data of a device (see the module docstring)."""
     data = []
     for g in boundaries.fluid_interfaces:
@@ -92,6 +105,8 @@ def coupling_data(boundaries: DeviceBoundaries) -> list[cp.Data]:
     for g in boundaries.cell_interfaces:
         data += [cp.Data(f"{g}/displacement", mesh=g, dim=2, writer="gel", readers=("cell",)),
                  cp.Data(f"{g}/force", mesh=g, dim=2, writer="cell", readers=("gel",))]
+        if gamma2 == "robin":
+            data.append(cp.Data(f"{g}/gel_force", mesh=g, dim=2, writer="gel", readers=("cell",)))
     return data
 
 
@@ -107,11 +122,14 @@ def coupling_config(scheme: str = "serial", acceleration: str = "iqn-ils", *, li
     if acceleration == "constant":
         acc["relaxation"] = 0.5
     elif acceleration == "aitken":
-        acc["initial_relaxation"] = 0.5
+        # per-data scaling by the residual sums keeps one omega fair to every data
+        acc.update(initial_relaxation=0.5, preconditioner={"type": "residual-sum"})
     elif acceleration in ("iqn-ils", "iqn-imvj"):
+        # value scaling: fixed per-data weights, so the kept secant columns stay consistent
+        # (residual-sum weights drift each iteration; on stiff cells IQN-ILS then stalls at ~1e-9)
         acc.update(initial_relaxation=0.5, max_used_iterations=100,
                    filter={"type": "qr2", "limit": 1e-3},
-                   preconditioner={"type": "residual-sum"})
+                   preconditioner={"type": "value"})
     config = {"scheme": f"{scheme}-implicit" if scheme in ("serial", "parallel") else scheme,
               "order": order, "max_iterations": max_iterations, "acceleration": acc,
               "convergence": [{"type": "relative", "limit": limit, "data": "*"}]}
@@ -170,9 +188,10 @@ class GelParticipant(cp.Participant):
     name = "gel"
 
     def __init__(self, solver: PoroelasticGelSolver, fluid_interfaces: typing.Iterable[str],
-                 cell_interfaces: typing.Iterable[str]):
+                 cell_interfaces: typing.Iterable[str], gamma2: str = "dirichlet"):
         self.solver = solver
         self.fluid_interfaces, self.cell_interfaces = list(fluid_interfaces), list(cell_interfaces)
+        self.gamma2 = gamma2
 
     def interface_points(self, mesh_name: str) -> np.ndarray:
         return self.solver.interface_points(mesh_name)
@@ -185,30 +204,44 @@ class GelParticipant(cp.Participant):
             self.solver.set_interface_data(g, force=inputs[f"{g}/force"])
         self.solver.solve()
         out = {}
+        for g in self.cell_interfaces:
+            out[f"{g}/displacement"] = self.solver.interface_data(g)["displacement"]
+            if self.gamma2 == "robin":
+                # the force the gel exerts on the cell: the opposite of the load it carries
+                out[f"{g}/gel_force"] = -inputs[f"{g}/force"]
         for g in self.fluid_interfaces:
             d = self.solver.interface_data(g)
             out[f"{g}/gel_traction"] = d["traction"]
             out[f"{g}/superficial_velocity"] = d["superficial_velocity"]
             out[f"{g}/interstitial_velocity"] = d["interstitial_velocity"]
-        for g in self.cell_interfaces:
-            out[f"{g}/displacement"] = self.solver.interface_data(g)["displacement"]
         return out
 
 
 class CellParticipant(cp.Participant):
-    """The cell solver seen by the coupling: Dirichlet on Gamma2, returns the force on the gel."""
+    """The cell solver seen by the coupling; returns the force on the gel.
+
+    Dirichlet-Neumann (default): the cell takes the gel's displacement.
+    Robin-Neumann: the cell takes the gel's force on it plus springs kappa
+    towards the gel's displacement, f = f_gel + kappa M (u_s - u_c); at
+    convergence u_c = u_s and the forces balance.
+    """
 
     name = "cell"
 
-    def __init__(self, solver: NeoHookeanCellSolver, interfaces: typing.Iterable[str]):
-        self.solver, self.interfaces = solver, list(interfaces)
+    def __init__(self, solver: NeoHookeanCellSolver, interfaces: typing.Iterable[str],
+                 gamma2: str = "dirichlet"):
+        self.solver, self.interfaces, self.gamma2 = solver, list(interfaces), gamma2
 
     def interface_points(self, mesh_name: str) -> np.ndarray:
         return self.solver.interface_points(mesh_name)
 
     def solve(self, inputs):
         for g in self.interfaces:
-            self.solver.set_interface_data(g, displacement=inputs[f"{g}/displacement"])
+            if self.gamma2 == "robin":
+                self.solver.set_interface_data(g, displacement=inputs[f"{g}/displacement"],
+                                               force=inputs[f"{g}/gel_force"])
+            else:
+                self.solver.set_interface_data(g, displacement=inputs[f"{g}/displacement"])
         self.solver.solve()
         # the cell's reaction is the force ON the cell; the gel feels the opposite
         return {f"{g}/force": -self.solver.interface_data(g)["force"] for g in self.interfaces}
@@ -228,7 +261,8 @@ class Device:
 
     def __init__(self, params: CaseParameters, comm: MPI.Comm = MPI.COMM_WORLD,
                  robin_coefficient: float | None = None, whole_mesh: bool = False,
-                 newton_rtol: float = 1e-12):
+                 newton_rtol: float = 1e-12, gamma2: str = "dirichlet",
+                 gamma2_coefficient: float | None = None):
         t0 = time.perf_counter()
         params.validate()
         self.params, self.comm = params, comm
@@ -243,6 +277,12 @@ class Device:
         self.alpha_t = viscosity / ph.beta
         if not self.alpha_n > 0:
             raise ValueError(f"robin_coefficient = {self.alpha_n} must be > 0")
+        if gamma2 not in ("dirichlet", "robin"):
+            raise ValueError(f"gamma2 = {gamma2!r}: the cell's condition on Gamma2 must be 'dirichlet' or 'robin'")
+        self.gamma2 = gamma2
+        self.kappa = default_gamma2_coefficient(params) if gamma2_coefficient is None else gamma2_coefficient
+        if gamma2 == "robin" and not self.kappa > 0:
+            raise ValueError(f"gamma2_coefficient = {self.kappa} must be > 0")
         self.mesh_time = time.perf_counter() - t0
         t0 = time.perf_counter()
         fluid_mesh, fluid_tags = self.mesh.region("fluid")
@@ -262,16 +302,18 @@ class Device:
         self.cell = None
         if params.with_cell:
             cell_mesh, cell_tags = self.mesh.region("cell")
+            robin = gamma2 == "robin"
             self.cell = NeoHookeanCellSolver(
                 cell_mesh, cell_tags, mu=params.mu_c, lmbda=params.lambda_c, stress_scale=s,
-                displacement_scale=d, interfaces=b.cell_interfaces, symmetry=b.cell_symmetry,
-                newton_rtol=newton_rtol)
+                displacement_scale=d, interfaces=None if robin else b.cell_interfaces,
+                robin_interfaces={k: (t, self.kappa) for k, t in b.cell_interfaces.items()} if robin else None,
+                symmetry=b.cell_symmetry, newton_rtol=newton_rtol)
         self.setup_time = time.perf_counter() - t0
         self.participants = [FluidParticipant(self.fluid, b.fluid_interfaces, self.alpha_n, self.alpha_t),
-                             GelParticipant(self.gel, b.fluid_interfaces, b.cell_interfaces)]
+                             GelParticipant(self.gel, b.fluid_interfaces, b.cell_interfaces, gamma2)]
         if self.cell is not None:
-            self.participants.append(CellParticipant(self.cell, b.cell_interfaces))
-        self.data = coupling_data(b)
+            self.participants.append(CellParticipant(self.cell, b.cell_interfaces, gamma2))
+        self.data = coupling_data(b, gamma2)
         self.scheme: cp.CouplingScheme | None = None
         self.result: cp.CouplingResult | None = None
 

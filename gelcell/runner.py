@@ -61,10 +61,10 @@ def monolithic_coefficients(params: CaseParameters) -> MonolithicCoefficients:
 def solve_partitioned(params: CaseParameters, scheme: str = "serial", acceleration: str = "iqn-ils",
                       coupling: typing.Mapping | None = None, comm: MPI.Comm = MPI.COMM_WORLD,
                       verbose: bool = True, robin_coefficient: float | None = None,
-                      checks: bool = True) -> CaseRun:
+                      checks: bool = True, gamma2: str = "dirichlet") -> CaseRun:
     """Solve a case with the partitioned scheme; summary with coupling, timing and checks."""
     t0 = time.perf_counter()
-    device = Device(params, comm, robin_coefficient=robin_coefficient)
+    device = Device(params, comm, robin_coefficient=robin_coefficient, gamma2=gamma2)
     config = coupling_config(scheme, acceleration, with_cell=params.with_cell,
                              overrides=dict(coupling or params.coupling or {}))
     t1 = time.perf_counter()
@@ -75,7 +75,9 @@ def solve_partitioned(params: CaseParameters, scheme: str = "serial", accelerati
     summary["method"] = "partitioned"
     summary["coupling"] = {
         "scheme": config["scheme"], "acceleration": config["acceleration"]["type"],
-        "robin_coefficient": device.alpha_n, "iterations": result.iterations, "converged": result.converged,
+        "robin_coefficient": device.alpha_n, "gamma2": device.gamma2,
+        "gamma2_coefficient": device.kappa if device.gamma2 == "robin" else None,
+        "iterations": result.iterations, "converged": result.converged,
         "reason": result.reason, "residual_history": result.residual_history,
         "relaxation": result.relaxation}
     summary["mesh"] = {
@@ -216,7 +218,7 @@ def run_case(params: CaseParameters, out: str | None, *, monolithic: bool = Fals
              acceleration: str = "iqn-ils", coupling: typing.Mapping | None = None,
              comm: MPI.Comm = MPI.COMM_WORLD, verbose: bool = True, figures: bool = True,
              fields: bool = True, overlay_profiles: dict | None = None, stream=None,
-             extra_json: dict | None = None) -> dict:
+             extra_json: dict | None = None, gamma2: str = "dirichlet") -> dict:
     """Solve one case and write its outputs into ``out`` (whole or not at all)."""
     stream = stream or sys.stdout
     say = (lambda msg: print(msg, file=stream, flush=True)) if comm.rank == 0 else (lambda msg: None)
@@ -225,7 +227,7 @@ def run_case(params: CaseParameters, out: str | None, *, monolithic: bool = Fals
     if monolithic:
         run = solve_monolithic(params, comm)
     else:
-        run = solve_partitioned(params, scheme, acceleration, coupling, comm, verbose)
+        run = solve_partitioned(params, scheme, acceleration, coupling, comm, verbose, gamma2=gamma2)
     summary = report(run.summary, params)
     say(format_summary(summary))
     if "interface_residuals" in summary:

@@ -65,6 +65,7 @@ class Method:
     scheme: str
     acceleration: dict
     robin_factor: float = 1.0      # multiple of the device's default alpha_n
+    gamma2: str = "dirichlet"      # the cell's condition on Gamma2: "dirichlet" or "robin"
 
     def config(self, with_cell: bool, max_iterations: int) -> dict:
         base = coupling_config(self.scheme, self.acceleration["type"], with_cell=with_cell,
@@ -112,6 +113,12 @@ def study_methods(quick: bool = False) -> list[Method]:
                       "filter": {"type": "qr2", "limit": 1e-3}}),
     ]
     methods = [Method(name, scheme, acc) for scheme in ("serial", "parallel") for name, acc in accelerations]
+    # Robin-Neumann on Gamma2 (the cell takes the gel's force and springs towards its displacement)
+    methods += [Method("iqn-ils robin gamma2", "serial", iqn, gamma2="robin"),
+                Method("aitken robin gamma2", "serial", {"type": "aitken", "initial_relaxation": 0.5},
+                       gamma2="robin")]
+    # the preconditioner: residual-sum weights drift every iteration (the default is value scaling)
+    methods.append(Method("iqn-ils residual-sum", "serial", {**iqn, "preconditioner": {"type": "residual-sum"}}))
     # the partitioning variant: the Robin coefficient of the fluid's mass condition on Gamma1/Gamma3
     for factor in (0.1, 10.0):
         methods += [Method(f"iqn-ils alpha x{factor:g}", "serial", iqn, factor),
@@ -172,7 +179,8 @@ def run_one(case: StudyCase, method: Method, mesh_size: float, reference, max_it
             comm: MPI.Comm) -> dict:
     """One partitioned solve of the study; a record of the outcome."""
     params = case.parameters(mesh_size)
-    device = Device(params, comm, robin_coefficient=method.robin_factor * default_robin_coefficient(params))
+    device = Device(params, comm, robin_coefficient=method.robin_factor * default_robin_coefficient(params),
+                    gamma2=method.gamma2)
     config = method.config(True, max_iterations)
     t0 = time.perf_counter()
     result, error = None, None

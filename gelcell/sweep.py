@@ -49,7 +49,7 @@ def _row(summary: dict) -> dict:
 
 def run_sweep(cases: list[CaseParameters], param: str, values: list[float], out: str, *,
               monolithic: bool = False, scheme: str = "serial", acceleration: str = "iqn-ils",
-              verbose: bool = False, comm: MPI.Comm = MPI.COMM_WORLD) -> list[dict]:
+              verbose: bool = False, comm: MPI.Comm = MPI.COMM_WORLD, gamma2: str = "dirichlet") -> list[dict]:
     """Run every case; write sweep.csv/json, sweep.png and runs/<param>=<value>/summary.json."""
     rows = []
     with atomic_directory(out, comm) as tmp:
@@ -57,7 +57,7 @@ def run_sweep(cases: list[CaseParameters], param: str, values: list[float], out:
             run_dir = os.path.join(tmp, "runs", f"{param}={value:g}")
             summary = run_case(params, run_dir, monolithic=monolithic, scheme=scheme,
                                acceleration=acceleration, comm=comm, verbose=verbose, figures=False,
-                               fields=False)
+                               fields=False, gamma2=gamma2)
             rows.append({param: value, **_row(summary)})
         write_json_file(os.path.join(tmp, "sweep.json"), rows, comm)
         if comm.rank == 0:

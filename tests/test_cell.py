@@ -456,3 +456,33 @@ def test_benchmark_factorise_once(h):
           f"({times['adaptive'][1]['factorizations']} LU in 6 solves), refactorise "
           f"{times['never'][0] * 1e3:.1f} ms/solve ({times['never'][1]['factorizations']} LU)")
     assert times["adaptive"][1]["factorizations"] == 1
+
+
+def test_robin_interface_patch():
+    """Robin data taken from an affine finite-strain state reproduce that state.
+
+    With u* = the affine displacement and f* = its exact nodal reactions on
+    the Robin boundary, the spring term vanishes at the affine state, which
+    therefore solves  int P : grad v + int kappa (u - u*) . v = f*(v).
+    Any kappa > 0 must give it (and kappa holds the rigid modes).
+    """
+    from cell.meshes import BOUNDARY, disk
+    msh, ft = disk(radius=1.0, h=0.25)
+    tag = BOUNDARY
+    Fm = np.array([[1.05, 0.02], [-0.01, 0.97]])
+    affine = lambda x: np.vstack(((Fm[0, 0] - 1) * x[0] + Fm[0, 1] * x[1],  # noqa: E731
+                                  Fm[1, 0] * x[0] + (Fm[1, 1] - 1) * x[1]))
+    reference = NeoHookeanCellSolver(msh, ft, mu=1.0, lmbda=1.5, dirichlet=[(tag, affine)])
+    reference.solve()
+    from femtools.interface import InterfaceNodes
+    nodes = InterfaceNodes(reference.V, ft, tag)
+    from femtools.linalg import assemble_residual_vector
+    R = nodes.from_array(assemble_residual_vector(reference._internal_form).array)
+    u_star = nodes.from_function(reference.displacement)
+    for kappa in (0.1, 10.0):
+        robin = NeoHookeanCellSolver(msh, ft, mu=1.0, lmbda=1.5, robin_interfaces={"G": (tag, kappa)})
+        robin.set_interface_data("G", displacement=u_star, force=R)
+        robin.solve()
+        out = robin.interface_data("G")
+        assert np.abs(out["displacement"] - u_star).max() < 1e-10 * np.abs(u_star).max()
+        assert np.abs(out["force"] - R).max() < 1e-9 * np.abs(R).max()
