@@ -20,6 +20,9 @@ Conventions of the reported quantities (model.md section 7):
   * the traction parts around the cell are the von Mises measures of -p I,
     phi_f sigma_f, phi_s sigma_s and their sum, maximised over the gel within
     one cell diameter of Gamma2 (distance from the cell's surface <= d);
+  * the cell's centroid displacement is the area-weighted mean of u_c; in
+    the normal-flow device it is that of the whole (mirrored) cell, whose y
+    component vanishes by symmetry;
   * the volume change below Gamma1 is the change of area of the region bounded
     by Gamma1 (Gamma3) and the gel's fixed walls, cell included:
     int_gel (J - 1) + int_cell (J_c - 1); the cell's share is its term over the sum.
@@ -215,6 +218,10 @@ def summarize(fields: DeviceFields) -> dict:
         dx_cell = ufl.Measure("dx", domain=cm)
         area_cell = _integral(fem.Constant(cm, 1.0), dx_cell, comm)
         centroid = [d * _integral(uc[i], dx_cell, comm) / area_cell for i in range(2)]
+        if p.case == "normal":
+            # the mesh holds the lower half of a cell cut by the symmetry line y = H: the whole
+            # cell's centroid moves along the line (its mirror half moves the opposite way in y)
+            centroid[1] = 0.0
         cell_points = _PointValues(cm)
         vm_strain = cell_points(von_mises(cell_forms.green_lagrange(uc, dc)))
         vm_stress = cell_points(von_mises(cell_forms.cauchy_stress(uc, mu_c, lam_c, dc, sc)))
