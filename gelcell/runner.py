@@ -19,6 +19,7 @@ from mpi4py import MPI
 
 import coupling as cp
 from femtools.io import atomic_directory
+from gelcell.boundaries import device_boundaries
 from gelcell.checks import format_residuals, interface_residuals
 from gelcell.device import Device, coupling_config
 from gelcell.geometry import build_device
@@ -36,15 +37,6 @@ class CaseRun(typing.NamedTuple):
     fields: DeviceFields
     summary: dict
     solver: typing.Any
-
-
-def _mesh_block(device_mesh, solvers: dict) -> dict:
-    counts = device_mesh.counts()
-    out = {}
-    for region, solver in solvers.items():
-        cells = counts[region]["cells"] if isinstance(counts.get(region), dict) else None
-        out[region] = {"cells": cells, "dofs": solver}
-    return out
 
 
 def _dofs(space) -> int:
@@ -81,8 +73,7 @@ def solve_partitioned(params: CaseParameters, scheme: str = "serial", accelerati
         "reason": result.reason, "residual_history": result.residual_history,
         "relaxation": result.relaxation}
     summary["mesh"] = {
-        "fluid": {"cells": _cells(device.fluid.velocity), "dofs": _dofs(device.fluid.W)
-                  if hasattr(device.fluid, "W") else None},
+        "fluid": {"cells": _cells(device.fluid.velocity), "dofs": _dofs(device.fluid.W)},
         "gel": {"cells": _cells(fields.displacement), "dofs": _dofs(device.gel.W)},
     }
     if device.cell is not None:
@@ -106,7 +97,6 @@ def solve_monolithic(params: CaseParameters, comm: MPI.Comm = MPI.COMM_WORLD, ch
     t0 = time.perf_counter()
     dev_mesh = build_device(params, comm, whole=True)
     msh, ct, ft = dev_mesh.whole
-    from gelcell.boundaries import device_boundaries
     b = device_boundaries(params.case, params.with_cell, getattr(params.geometry, "channel_height", 0.2))
     solver = MonolithicSolver(msh, ct, ft, b, monolithic_coefficients(params))
     t1 = time.perf_counter()
@@ -240,8 +230,6 @@ def run_case(params: CaseParameters, out: str | None, *, monolithic: bool = Fals
             written += write_fields(tmp, run.fields)
         profiles = write_profiles(tmp, run.fields, comm)
         written += [f"{k.lower()}_profiles.{ext}" for k in profiles for ext in ("h5", "csv")]
-        if run.solver is not None and not monolithic and comm.rank == 0:
-            os.makedirs(os.path.join(tmp, "coupling"), exist_ok=True)
         if not monolithic:
             run.solver.scheme.write_records(os.path.join(tmp, "coupling"))
             written.append("coupling/")

@@ -150,7 +150,7 @@ def test_each_participant_alone_reproduces_its_part(case):
 
 
 @pytest.mark.parametrize("case", ["shear", "normal"])
-def test_robin_neumann_on_gamma2_reaches_the_same_solution(case, runs_cache={}):
+def test_robin_neumann_on_gamma2_reaches_the_same_solution(case):
     """The Robin-Neumann split on Gamma2 is another iteration for the same discrete problem."""
     p = _params(case)
     robin = solve_partitioned(p, "serial", "iqn-ils", verbose=False, checks=False, gamma2="robin")
