@@ -149,13 +149,11 @@ class MonolithicSolver:
         interface = (ufl.dot(lam, v)
                      + gel_forms.fluid_interface_residual(v_f, u, w, z, lam, V, n, c, 1)
                      + (ufl.dot(V, n) - phi_f * ufl.dot(v_f, n)) * ufl.dot(mu, n)
-                     + ufl.dot(tangential(lam - alpha_t * (V - v_f)), tangential(mu)))
+                     + ufl.dot(tangential(lam - alpha_t * (V - v_f)), tangential(mu))
+                     # a zero multiplier "mass": diagonal entries for the rows pinned at the interface ends
+                     + fem.Constant(msh, 0.0) * ufl.dot(lam, mu))
         for tag in self.boundaries.fluid_interfaces.values():
             F += gel_side(interface) * dS(tag)
-        # diagonal entries for the multiplier rows pinned at the interface ends
-        zero = fem.Constant(msh, 0.0)
-        for tag in self.boundaries.fluid_interfaces.values():
-            F += gel_side(zero * ufl.dot(lam, mu)) * dS(tag)
         return F
 
     # -- boundary conditions -------------------------------------------------
