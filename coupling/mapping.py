@@ -64,7 +64,8 @@ class Mapping:
         return np.asarray(self.matrix @ values)
 
 
-def _as_points(points: np.ndarray, what: str) -> np.ndarray:
+def as_points(points: np.ndarray, what: str) -> np.ndarray:
+    """Validated ``(N, space_dim)`` float points: non-empty and finite; ``what`` names them in errors."""
     pts = np.asarray(points, dtype=float)
     if pts.ndim == 1:
         pts = pts[:, None]
@@ -168,7 +169,7 @@ def order_along_curve(points: np.ndarray, curve: str = "auto", order: str = "cha
     Raises:
         ValueError: If the chain ordering finds a jump or the options are invalid.
     """
-    pts = _as_points(points, what)
+    pts = as_points(points, what)
     n = pts.shape[0]
     if curve not in ("auto", "open", "closed"):
         raise ValueError(f"{what}: curve = {curve!r} is not allowed; allowed: 'auto', 'open', 'closed'")
@@ -295,8 +296,8 @@ def build_mapping(kind: str, writer_points: np.ndarray, reader_points: np.ndarra
             space dimensions differ, or ``kind`` is unknown.
     """
     what = f"data {data_name!r} (reader {reader!r})"
-    wp = _as_points(writer_points, f"{what}: writer")
-    rp = _as_points(reader_points, f"{what}: reader")
+    wp = as_points(writer_points, f"{what}: writer")
+    rp = as_points(reader_points, f"{what}: reader")
     if wp.shape[1] != rp.shape[1]:
         raise ValueError(f"{what}: writer points are {wp.shape[1]}-D but reader points are "
                          f"{rp.shape[1]}-D")

@@ -49,7 +49,7 @@ from coupling.convergence import ConvergenceMeasure, MeasureValue, build_measure
 from coupling.errors import CouplingDivergedError, CouplingNotConvergedError
 from coupling.layout import VectorLayout
 from coupling.mapping import Mapping as DataMapping
-from coupling.mapping import build_mapping
+from coupling.mapping import as_points, build_mapping
 from coupling.parallel import default_comm
 from coupling.participant import Data, Participant
 from coupling.records import (CouplingResult, IterationRecord, RecordedSolve, Recording,
@@ -184,15 +184,7 @@ class CouplingScheme:
         key = (participant, mesh)
         if key not in self._points:
             raw = self.participants[participant].interface_points(mesh)
-            pts = np.array(raw, dtype=float)
-            if pts.ndim == 1:
-                pts = pts[:, None]
-            if pts.ndim != 2 or pts.shape[0] == 0:
-                raise ValueError(f"participant {participant!r}: interface_points({mesh!r}) must "
-                                 f"return a non-empty (N, space_dim) array, got shape {np.shape(raw)}")
-            if not np.all(np.isfinite(pts)):
-                raise ValueError(f"participant {participant!r}: interface_points({mesh!r}) "
-                                 f"contains NaN or Inf")
+            pts = np.array(as_points(raw, f"participant {participant!r}: interface_points({mesh!r})"))
             if self.config.check_replicated:
                 self._check_replicated(participant, {f"interface_points({mesh!r})": pts})
             pts.setflags(write=False)

@@ -44,7 +44,7 @@ from dolfinx import fem
 
 import cell.forms as cell_forms
 import gel.forms as gel_forms
-from femtools.functions import global_max, interpolate, von_mises
+from femtools.functions import global_max, integrate, interpolate, owned_values, von_mises
 from femtools.interface import InterfaceNodes
 from femtools.transfer import NodalTransfer
 from gelcell.geometry import Tag
@@ -132,13 +132,8 @@ def fields_from_monolithic(solver, device_mesh, params: CaseParameters) -> Devic
 
 
 # -- evaluation helpers ----------------------------------------------------------
-def _owned_nodal(u: fem.Function) -> np.ndarray:
-    imap, bs = u.function_space.dofmap.index_map, u.function_space.dofmap.index_map_bs
-    return u.x.array[: imap.size_local * bs].reshape(-1, bs)
-
-
 def _max_norm(u: fem.Function) -> float:
-    return global_max(np.linalg.norm(_owned_nodal(u), axis=1), u.function_space.mesh.comm)
+    return global_max(np.linalg.norm(owned_values(u), axis=1), u.function_space.mesh.comm)
 
 
 class _PointValues:
@@ -166,10 +161,6 @@ class _PointValues:
         return vmin, vmax, where
 
 
-def _integral(expr, dx, comm) -> float:
-    return comm.allreduce(fem.assemble_scalar(fem.form(expr * dx)), op=MPI.SUM)
-
-
 def _cell_geometry(params: CaseParameters):
     g = params.geometry
     return np.asarray(g.cell_centre, dtype=float), 0.5 * float(g.cell_diameter)
@@ -192,9 +183,9 @@ def summarize(fields: DeviceFields) -> dict:
     _, vm_net_max, vm_net_where = gel_points.extrema(vm_network)
     dx_gel = ufl.Measure("dx", domain=gm)
     _, theta_gel, _ = gel_forms.kinematics(u, c.d)
-    dA_gel = d * _integral(theta_gel, dx_gel, comm)
-    dA_abs = d * _integral(abs(theta_gel), dx_gel, comm)
-    area_gel = _integral(fem.Constant(gm, 1.0), dx_gel, comm)
+    dA_gel = d * integrate(theta_gel, dx_gel, comm)
+    dA_abs = d * integrate(abs(theta_gel), dx_gel, comm)
+    area_gel = integrate(fem.Constant(gm, 1.0), dx_gel, comm)
     grad_norm = gel_points(ufl.sqrt(ufl.inner(ufl.grad(u), ufl.grad(u))))
     out = {
         "model": {
@@ -216,8 +207,8 @@ def summarize(fields: DeviceFields) -> dict:
         mu_c, lam_c = fem.Constant(cm, float(p.mu_c)), fem.Constant(cm, float(p.lambda_c))
         dc, sc = fem.Constant(cm, float(d)), fem.Constant(cm, float(s))
         dx_cell = ufl.Measure("dx", domain=cm)
-        area_cell = _integral(fem.Constant(cm, 1.0), dx_cell, comm)
-        centroid = [d * _integral(uc[i], dx_cell, comm) / area_cell for i in range(2)]
+        area_cell = integrate(fem.Constant(cm, 1.0), dx_cell, comm)
+        centroid = [d * integrate(uc[i], dx_cell, comm) / area_cell for i in range(2)]
         if p.case == "normal":
             # the mesh holds the lower half of a cell cut by the symmetry line y = H: the whole
             # cell's centroid moves along the line (its mirror half moves the opposite way in y)
@@ -228,8 +219,8 @@ def summarize(fields: DeviceFields) -> dict:
         e_min, e_max, _ = cell_points.extrema(vm_strain)
         s_min, s_max, _ = cell_points.extrema(vm_stress)
         _, theta_cell, _ = cell_forms.kinematics(uc, dc)
-        dA_cell = d * _integral(theta_cell, dx_cell, comm)
-        dA_abs += d * _integral(abs(theta_cell), dx_cell, comm)
+        dA_cell = d * integrate(theta_cell, dx_cell, comm)
+        dA_abs += d * integrate(abs(theta_cell), dx_cell, comm)
         # traction parts: von Mises of each stress part in the gel within one diameter of the cell
         centre, radius = _cell_geometry(p)
         near = np.linalg.norm(gel_points.points - centre, axis=1) <= radius + 2 * radius * (1 + 1e-9)
@@ -302,7 +293,7 @@ def gamma_profiles(fields: DeviceFields, interface: str = "Gamma1") -> dict[str,
 
 def _l2(f, comm) -> float:
     dx = ufl.Measure("dx", domain=f.function_space.mesh)
-    return np.sqrt(_integral(ufl.inner(f, f), dx, comm))
+    return np.sqrt(integrate(ufl.inner(f, f), dx, comm))
 
 
 def relative_differences(a: DeviceFields, b: DeviceFields) -> dict[str, float]:
