@@ -1,42 +1,63 @@
-"""Steady poroelastic gel field solver (model.md sections 2, 3 and 6).
+"""Poroelastic gel field solver, steady or time-dependent (model.md sections 2, 3, 6 and 8).
 
 Unknowns on the gel's own mesh, in one mixed space in this order:
 
-    v_f  interstitial fluid velocity (P2 vector), units of V0
+    w    relative velocity v_f - v_s of the interstitial fluid (P2 vector), units of V0
     u    network displacement u_s (P2 vector), units of d L0  (u_s = d u)
     p    pore pressure (P1), units of the stress unit s (in units of mu_s)
 
+with v_f = w + v_s.  Steady state: v_s = 0, so w = v_f.  Time-dependent
+(``transient=True``, quasi-static: no inertia), v_s = du_s/dt discretised by
+backward Euler or (variable-step) BDF2:
+
+    v_s^{n+1} = (d / dt) (a0 u^{n+1} + a1 u^n + a2 u^{n-1})
+
+with (a0, a1, a2) = (1, -1, 0) for backward Euler and, for BDF2 with
+omega = dt_n / dt_{n-1}, ((1 + 2 omega)/(1 + omega), -(1 + omega), omega^2/(1 + omega)).
+
 The weak form is ``gel.forms`` (shared with the monolithic reference): the
 fluid phase (G3) tested with w, the mixture balance (G3 + G4) tested with z,
-and the steady mass balance div(phi_f v_f) = 0 (G2) tested with q, with
+and the mass balance div(phi_f v_f + phi_s v_s) = 0 (G2) tested with q, with
 phi_s = phi_s0 / J and a neo-Hookean network.  Newton's method with the exact
 Jacobian (``femtools.linalg.NewtonSolver``, Jacobian kept across calls while
-it contracts).
+it contracts, refactorised when dt changes).
 
 Boundary conditions (n is the gel's outward normal everywhere):
 
-* ``no_slip`` tags: v_f = 0 and u = 0 (the chamber bowl, the posts).
-* ``symmetry`` [(tags, c)]: v_f[c] = 0 and u[c] = 0; the tangential
+* ``no_slip`` tags: w = 0 and u = 0, i.e. v_f = v_s = 0 (the chamber bowl, the posts).
+* ``symmetry`` [(tags, c)]: w[c] = 0 and u[c] = 0; the tangential
   tractions of both phases are zero (natural).
 * ``fluid_interfaces`` {name: tags} (Gamma1, Gamma3): the split of
   model.md section 6 as written in ``gel.forms.fluid_interface_residual``.
   Inputs (N, 2) each: ``traction`` T = (Sigma - P I) n, the fluid's traction
   ON the gel (force per unit length, stress unit s), ``velocity`` V, the
-  fluid velocity (units of V0).  Outputs: ``superficial_velocity``
-  phi_f v_f (its normal component is the volume flux from the gel into the
-  fluid), ``interstitial_velocity`` v_f, ``traction`` the total traction the
-  gel exerts there, (N, 2), and ``pressure`` p, (N, 1).
-* ``cell_interfaces`` {name: tags} (Gamma2): v_f = 0 (steady: v_f = v_s =
-  v_c = 0).  Input ``force`` (N, 2): NODAL forces ON the gel from the cell
-  (entries of a consistent load vector, units of s L0, not a traction
-  density); they enter the mixture equation.  Output ``displacement`` (N, 2):
-  nodal u in units of d L0.
+  fluid velocity (units of V0).  Outputs: ``mixture_velocity``
+  phi_f v_f + phi_s v_s (its normal component is the volume flux from the gel
+  into the fluid, I13), ``superficial_velocity`` phi_f v_f,
+  ``interstitial_velocity`` v_f, ``traction`` the total traction the gel
+  exerts there, (N, 2), and ``pressure`` p, (N, 1).
+* ``cell_interfaces`` {name: tags} (Gamma2): w = 0, i.e. v_f = v_s (= v_c,
+  since u_s = u_c there and both use the same time discretisation).  Input
+  ``force`` (N, 2): NODAL forces ON the gel from the cell (entries of a
+  consistent load vector, units of s L0, not a traction density); they enter
+  the mixture equation.  Output ``displacement`` (N, 2): nodal u in units of d L0.
+* ``tractions`` [(tags, value)]: a dead load t on the mixture equation,
+  (phi_f sigma_f + phi_s sigma_s - p I) n = t (stress unit s), e.g. a
+  permeable piston on a drained surface (Terzaghi).
 * Every other boundary is natural: zero partial tractions of both phases,
   i.e. phi_f (sigma_f - p I) n = 0 and phi_s sigma_s n = 0 (an open,
   load-free boundary at p = 0).
 
 Interface inputs that are never set are zero.  All interface arrays follow
 the rank-independent node order of ``femtools.interface.InterfaceNodes``.
+
+Time stepping (``transient=True``)::
+
+    gel.set_time_step(dt, scheme="be")      # or "bdf2" (needs two past states)
+    gel.solve()                             # the state at t + dt
+    gel.push_history()                      # accept it: u^{n-1} <- u^n <- u
+    state = gel.get_state()                 # a copy, e.g. for coupling iterations
+    gel.set_state(state)
 """
 
 from __future__ import annotations
@@ -46,6 +67,7 @@ import time
 import typing
 
 import numpy as np
+import scipy.spatial
 
 from mpi4py import MPI
 from petsc4py import PETSc
@@ -65,7 +87,7 @@ __all__ = ["PoroelasticGelSolver", "GelParameters"]
 
 log = logging.getLogger(__name__)
 
-FIELDS = ("v_f", "u", "p")
+FIELDS = ("w", "u", "p")
 
 # MUMPS options on top of femtools' defaults.  In the paper's units (s = d = 1)
 # the fluid rows are ~Ca = 3e-10 times the network rows; without row/column
@@ -74,6 +96,8 @@ FIELDS = ("v_f", "u", "p")
 # and more workspace slack (ICNTL(14)) make both unit choices factorise alike.
 DEFAULT_PETSC_OPTIONS = {"mat_mumps_icntl_8": 8, "mat_mumps_icntl_14": 200}
 _FIELD_INDEX = {name: i for i, name in enumerate(FIELDS)}
+_FIELD_INDEX["v_f"] = 0     # Dirichlet data for v_f are data for w (= v_f where v_s = 0)
+TIME_SCHEMES = ("be", "bdf2")
 
 
 def _as_tags(tags, what: str) -> tuple[int, ...]:
@@ -97,14 +121,18 @@ class PoroelasticGelSolver(FieldSolver):
         facet_tags: facet tags of ``mesh``.
         params: ``GelParameters`` (dimensionless groups and the units s, d).
         no_slip: tags where v_f = 0 and u = 0.
-        symmetry: ``[(tags, component)]``: v_f[component] = 0 and u[component] = 0.
+        symmetry: ``[(tags, component)]``: w[component] = 0 and u[component] = 0.
         fluid_interfaces: ``{name: tags}`` fluid-gel interfaces (Gamma1, Gamma3).
         cell_interfaces: ``{name: tags}`` gel-cell interfaces (Gamma2).
         dirichlet: extra Dirichlet data, mainly for tests:
             ``[(tags, field, value)]`` or ``[(tags, field, value, component)]``
-            with field in ``"v_f" | "u" | "p"`` (u in units of d L0, p in
-            units of s) and value a number, a vector of numbers, or a
+            with field in ``"w" | "u" | "p"`` (u in units of d L0, p in
+            units of s; ``"v_f"`` is accepted for ``"w"``, which it equals
+            where v_s = 0) and value a number, a vector of numbers, or a
             callable ``x -> values`` as for ``Function.interpolate``.
+        tractions: ``[(tags, value)]``: dead loads on the mixture equation,
+            total traction = value (stress unit s); value a (2,) vector or a
+            callable ``x -> (2, n)``; change it with ``set_traction``.
         body_forces: optional ``(f_w, f_z, f_q)`` UFL expressions (manufactured
             solutions), see ``gel.forms.bulk_residual``.
         name: name of the solver (logs, PETSc option prefixes).
@@ -113,7 +141,9 @@ class PoroelasticGelSolver(FieldSolver):
         petsc_options: overrides of the MUMPS LU options (defaults: femtools'
             plus ``DEFAULT_PETSC_OPTIONS``).
         newton_rtol: relative Newton tolerance |du| <= rtol |u|.
-        dt: reserved for the transient model (backward Euler); must be None.
+        transient: build the time-dependent forms (v_s from the displacement
+            history, see the module docstring); the solver is steady until
+            ``set_time_step`` is called.
 
     Example::
 
@@ -131,16 +161,14 @@ class PoroelasticGelSolver(FieldSolver):
                  fluid_interfaces: typing.Mapping[str, typing.Any] | None = None,
                  cell_interfaces: typing.Mapping[str, typing.Any] | None = None,
                  dirichlet: typing.Iterable[tuple] = (),
+                 tractions: typing.Iterable[tuple] = (),
                  body_forces=None, name: str = "gel", quadrature_degree: int = 4,
                  petsc_options: dict | None = None, newton_rtol: float = 1e-11,
-                 dt: float | None = None):
+                 transient: bool = False):
         t0 = time.perf_counter()
         super().__init__()
         if not isinstance(params, GelParameters):
             raise TypeError(f"params must be a GelParameters, got {type(params).__name__}")
-        if dt is not None:
-            raise NotImplementedError("the transient gel (backward Euler, G1-G5) is not implemented; "
-                                      f"dt must be None, got {dt!r}")
         if int(quadrature_degree) < 1:
             raise ValueError(f"quadrature_degree must be >= 1, got {quadrature_degree!r}")
         if not (0.0 < newton_rtol < 1.0):
@@ -149,7 +177,7 @@ class PoroelasticGelSolver(FieldSolver):
         self.mesh = mesh
         self.facet_tags = facet_tags
         self.quadrature_degree = int(quadrature_degree)
-        self.dt = dt
+        self.transient = bool(transient)
         comm = mesh.comm
         self._present_tags = set(int(t) for t in np.unique(
             np.hstack(comm.allgather(np.unique(facet_tags.values)))))
@@ -167,13 +195,16 @@ class PoroelasticGelSolver(FieldSolver):
         self.ds = quadrature_measure("ds", mesh, facet_tags, degree=self.quadrature_degree)
         self.n = ufl.FacetNormal(mesh)
 
-        v_f, u, p = ufl.split(self.state)
+        self._build_time_terms()
+        rel, u, p = ufl.split(self.state)
         w, z, q = ufl.TestFunctions(self.W)
-        F = forms.bulk_residual(v_f, u, p, w, z, q, self.coefficients, self.dx, body_forces)
+        v_f = rel + self.v_s if self.transient else rel
+        F = forms.bulk_residual(v_f, u, p, w, z, q, self.coefficients, self.dx, body_forces, self.v_s)
         for iname, tags in fluid_interfaces.items():
             F += self._add_fluid_interface(iname, tags)
         for iname, tags in cell_interfaces.items():
             self._add_cell_interface(iname, tags)
+        F += self._add_tractions(tractions, z)
         self.bcs = self._build_bcs(no_slip, symmetry, dirichlet)
         self.residual_form = F
         options = dict(DEFAULT_PETSC_OPTIONS, **(petsc_options or {}))
@@ -185,7 +216,7 @@ class PoroelasticGelSolver(FieldSolver):
 
     # -- construction helpers ---------------------------------------------
     def _build_spaces(self) -> None:
-        """Mixed space [v_f (P2 vector), u (P2 vector), p (P1)], its collapsed subspaces, the state."""
+        """Mixed space [w (P2 vector), u (P2 vector), p (P1)], its collapsed subspaces, the state."""
         cell = self.mesh.ufl_cell()
         P2 = ufl.VectorElement("Lagrange", cell, 2)
         P1 = ufl.FiniteElement("Lagrange", cell, 1)
@@ -193,8 +224,28 @@ class PoroelasticGelSolver(FieldSolver):
         self._sub = [self.W.sub(i).collapse() for i in range(3)]   # (space, parent dofs)
         self.Q2 = fem.FunctionSpace(self.mesh, ("Lagrange", 2))    # nodal scalars at the P2 nodes
         self.state = fem.Function(self.W, name=f"{self.name}_state")
-        # the previous state, for the transient extension (v_s = (u - u_old)/dt)
-        self.state_old = fem.Function(self.W, name=f"{self.name}_state_old")
+
+    def _build_time_terms(self) -> None:
+        """v_s = c0 u + c1 u^n + c2 u^{n-1} with Constants: one compiled form for BE, BDF2 and any dt."""
+        self.v_s = None
+        if not self.transient:
+            return
+        V_u, self._u_dofs = self._sub[1]
+        self._u_dofs = np.asarray(self._u_dofs, dtype=np.int32)
+        self._history = [fem.Function(V_u, name="u_n"), fem.Function(V_u, name="u_nm1")]
+        self._rate = [fem.Constant(self.mesh, PETSc.ScalarType(0.0)) for _ in range(3)]
+        self._velocity = fem.Function(V_u, name="v_s")       # nodal v_s of the current state
+        # the node of the u space at each node of the w space (both P2 vector spaces on this mesh)
+        V_w = self._sub[0][0]
+        x_w, x_u = V_w.tabulate_dof_coordinates(), V_u.tabulate_dof_coordinates()
+        dist, self._u_block_of_w = scipy.spatial.cKDTree(x_u).query(x_w)
+        if dist.size and dist.max() > 1e-12 * (1.0 + np.abs(x_u).max()):
+            raise RuntimeError(f"{self.name}: the w and u spaces do not share their nodes")
+        self._history_length = 0                              # past states held (0, 1 or 2)
+        self.time_step: dict | None = None
+        u = ufl.split(self.state)[1]
+        c0, c1, c2 = self._rate
+        self.v_s = c0 * u + c1 * self._history[0] + c2 * self._history[1]
 
     def _build_coefficients(self, params: GelParameters) -> None:
         """Coefficients as Constants: one compiled form serves every parameter value."""
@@ -212,14 +263,20 @@ class PoroelasticGelSolver(FieldSolver):
         scalar = InterfaceNodes(self.Q2, self.facet_tags, tags)
         if not np.array_equal(nodes.points, scalar.points):
             raise RuntimeError(f"{self.name}: {iname}: P2 vector and scalar interface nodes differ")
+        V_u, map_u = self._sub[1]
+        displacement_nodes = InterfaceNodes(V_u, self.facet_tags, tags, parent_dofs=map_u)
+        if not np.array_equal(nodes.points, displacement_nodes.points):
+            raise RuntimeError(f"{self.name}: {iname}: velocity and displacement interface nodes differ")
         T = fem.Function(V_vf, name=f"{iname}_traction")
         V = fem.Function(V_vf, name=f"{iname}_velocity")
-        self._fluid[iname] = dict(tags=tags, nodes=nodes, scalar=scalar, T=T, V=V,
-                                  traction=np.zeros((nodes.size, 2)))
+        self._fluid[iname] = dict(tags=tags, nodes=nodes, scalar=scalar, displacement_nodes=displacement_nodes,
+                                  T=T, V=V, traction=np.zeros((nodes.size, 2)))
         self._add_interface(iname, nodes, {"traction": 2, "velocity": 2})
-        v_f, u, _ = ufl.split(self.state)
+        rel, u, _ = ufl.split(self.state)
         w, z, _ = ufl.TestFunctions(self.W)
-        return forms.fluid_interface_residual(v_f, u, w, z, T, V, self.n, self.coefficients, self.ds(tags))
+        v_f = rel + self.v_s if self.transient else rel
+        return forms.fluid_interface_residual(v_f, u, w, z, T, V, self.n, self.coefficients, self.ds(tags),
+                                              self.v_s)
 
     def _add_cell_interface(self, iname: str, tags) -> None:
         """Declare a cell interface: the owned mixed-space u dofs that receive its nodal forces."""
@@ -233,22 +290,50 @@ class PoroelasticGelSolver(FieldSolver):
                                  force=np.zeros((nodes.size, 2)))
         self._add_interface(iname, nodes, {"force": 2})
 
+    def _add_tractions(self, tractions, z) -> ufl.Form:
+        """Dead loads on the mixture equation: - int t . z ds on each entry's facets."""
+        self._tractions = []
+        F = 0
+        for k, entry in enumerate(tractions):
+            if not isinstance(entry, (tuple, list)) or len(entry) != 2:
+                raise ValueError(f"{self.name}: tractions[{k}] must be (tags, value), got {entry!r}")
+            tags = self._check_tags(entry[0], f"tractions[{k}]")
+            t = fem.Function(self._sub[1][0], name=f"traction_{k}")
+            self._tractions.append(t)
+            self.set_traction(k, entry[1])
+            F -= ufl.dot(t, z) * self.ds(tags)
+        return F
+
+    def set_traction(self, index: int, value) -> None:
+        """Change ``tractions[index]``: a (2,) vector or a callable ``x -> (2, n)`` (stress unit s)."""
+        t = self._tractions[index]
+        if callable(value):
+            t.interpolate(value)
+        else:
+            val = np.asarray(value, dtype=float).ravel()
+            if val.size != 2:
+                raise ValueError(f"{self.name}: tractions[{index}] must be a 2-vector or a callable, got {value!r}")
+            t.x.array.reshape(-1, 2)[:] = val
+        if not np.all(np.isfinite(t.x.array)):
+            raise FloatingPointError(f"{self.name}: tractions[{index}] contains NaN or Inf")
+        t.x.scatter_forward()
+
     def _build_bcs(self, no_slip, symmetry, dirichlet) -> list:
-        """Dirichlet conditions: no slip, symmetry, v_f = 0 on cell interfaces, extra data."""
+        """Dirichlet conditions: no slip, symmetry, w = 0 on cell interfaces, extra data."""
         self._bc_functions = []
         bcs = []
         if isinstance(no_slip, (int, np.integer)) or len(tuple(no_slip)) > 0:
             tags = self._check_tags(no_slip, "no_slip")
-            bcs += [self._dirichlet(tags, "v_f", 0.0), self._dirichlet(tags, "u", 0.0)]
+            bcs += [self._dirichlet(tags, "w", 0.0), self._dirichlet(tags, "u", 0.0)]
         for entry in symmetry:
             try:
                 tags, comp = entry
             except (TypeError, ValueError):
                 raise ValueError(f"symmetry entries are (tags, component), got {entry!r}") from None
             tags = self._check_tags(tags, "symmetry")
-            bcs += [self._dirichlet(tags, "v_f", 0.0, comp), self._dirichlet(tags, "u", 0.0, comp)]
+            bcs += [self._dirichlet(tags, "w", 0.0, comp), self._dirichlet(tags, "u", 0.0, comp)]
         for data in self._cell.values():
-            bcs.append(self._dirichlet(data["tags"], "v_f", 0.0))
+            bcs.append(self._dirichlet(data["tags"], "w", 0.0))
         for entry in dirichlet:
             if not isinstance(entry, (tuple, list)) or len(entry) not in (3, 4):
                 raise ValueError(f"dirichlet entries are (tags, field, value[, component]), got {entry!r}")
@@ -282,7 +367,7 @@ class PoroelasticGelSolver(FieldSolver):
         sub = self.W.sub(i)
         if component is not None:
             if field == "p" or component not in (0, 1):
-                raise ValueError(f"{self.name}: component must be 0 or 1 for v_f and u "
+                raise ValueError(f"{self.name}: component must be 0 or 1 for w and u "
                                  f"(None for p), got {component!r} for {field!r}")
             sub = sub.sub(int(component))
         space, _ = sub.collapse()
@@ -320,7 +405,106 @@ class PoroelasticGelSolver(FieldSolver):
             raise TypeError(f"params must be a GelParameters, got {type(params).__name__}")
         self.params = params
         self._assign_constants(params)
+        if self.transient:
+            self._apply_rates()
         self._newton.invalidate_jacobian()
+
+    # -- time stepping -------------------------------------------------------
+    def _require_transient(self, what: str) -> None:
+        if not self.transient:
+            raise RuntimeError(f"{self.name}: {what} needs a solver built with transient=True")
+
+    def set_time_step(self, dt: float, scheme: str = "be", dt_previous: float | None = None) -> None:
+        """Use v_s = (d/dt)(a0 u + a1 u^n + a2 u^{n-1}) for the next solves (see the module docstring).
+
+        Args:
+            dt: the step t^{n+1} - t^n in the paper's time unit L0/V0, > 0.
+            scheme: ``"be"`` (backward Euler) or ``"bdf2"`` (variable-step
+                BDF2; needs two past states, i.e. ``push_history`` called twice).
+            dt_previous: t^n - t^{n-1} for BDF2 (default: ``dt``).
+        """
+        self._require_transient("set_time_step")
+        if scheme not in TIME_SCHEMES:
+            raise ValueError(f"{self.name}: time scheme must be one of {TIME_SCHEMES}, got {scheme!r}")
+        if not (np.isfinite(dt) and dt > 0):
+            raise ValueError(f"{self.name}: dt must be finite and > 0, got {dt!r}")
+        if scheme == "be":
+            a = (1.0, -1.0, 0.0)
+        else:
+            if self._history_length < 2:
+                raise RuntimeError(f"{self.name}: BDF2 needs two past states; start with one backward Euler step")
+            dt_previous = dt if dt_previous is None else float(dt_previous)
+            if not (np.isfinite(dt_previous) and dt_previous > 0):
+                raise ValueError(f"{self.name}: dt_previous must be finite and > 0, got {dt_previous!r}")
+            omega = dt / dt_previous
+            a = ((1 + 2 * omega) / (1 + omega), -(1 + omega), omega**2 / (1 + omega))
+        changed = self.time_step is None or not np.isclose(self.time_step["a"][0] / self.time_step["dt"],
+                                                          a[0] / dt, rtol=1e-14, atol=0.0)
+        self.time_step = {"dt": float(dt), "scheme": scheme, "a": a}
+        self._apply_rates()
+        if changed:
+            # the Jacobian holds (d/dt) a0: a new factorisation for a new step size or scheme
+            self._newton.invalidate_jacobian()
+
+    def set_steady(self) -> None:
+        """v_s = 0 again: the next solves are steady (the history is kept)."""
+        self._require_transient("set_steady")
+        if self.time_step is not None:
+            self._newton.invalidate_jacobian()
+        self.time_step = None
+        self._apply_rates()
+
+    def _apply_rates(self) -> None:
+        d = self.params.displacement_scale
+        a = (0.0, 0.0, 0.0) if self.time_step is None else self.time_step["a"]
+        dt = 1.0 if self.time_step is None else self.time_step["dt"]
+        for const, coefficient in zip(self._rate, a):
+            const.value = d * coefficient / dt
+        self._update_velocity()
+
+    def _update_velocity(self) -> None:
+        """Nodal v_s of the current state (same P2 space as u, so the combination is exact)."""
+        u = self.state.x.array[self._u_dofs]
+        c0, c1, c2 = (float(c.value) for c in self._rate)
+        self._velocity.x.array[:] = c0 * u + c1 * self._history[0].x.array + c2 * self._history[1].x.array
+
+    def push_history(self) -> None:
+        """Accept the current state as the newest past state: u^{n-1} <- u^n <- u."""
+        self._require_transient("push_history")
+        u_n, u_nm1 = self._history
+        u_nm1.x.array[:] = u_n.x.array
+        u_n.x.array[:] = self.state.x.array[self._u_dofs]
+        self._history_length = min(self._history_length + 1, 2)
+        self._update_velocity()
+
+    @property
+    def history_length(self) -> int:
+        """Number of past states held (0, 1 or 2): 2 are needed for BDF2."""
+        self._require_transient("history_length")
+        return self._history_length
+
+    def get_state(self) -> dict[str, np.ndarray]:
+        """A copy of the local state: the unknowns and the displacement history (this rank's arrays)."""
+        state = {"state": self.state.x.array.copy()}
+        if self.transient:
+            state.update(u_n=self._history[0].x.array.copy(), u_nm1=self._history[1].x.array.copy(),
+                         history_length=np.array(self._history_length))
+        return state
+
+    def set_state(self, state: typing.Mapping[str, np.ndarray]) -> None:
+        """Restore a state returned by ``get_state`` on this rank (copies from it)."""
+        arrays = [("state", self.state)]
+        if self.transient:
+            arrays += [("u_n", self._history[0]), ("u_nm1", self._history[1])]
+        for key, f in arrays:
+            values = np.asarray(state[key], dtype=float)
+            if values.shape != f.x.array.shape:
+                raise ValueError(f"{self.name}: state[{key!r}] has shape {values.shape}, "
+                                 f"expected {f.x.array.shape}")
+            f.x.array[:] = values
+        if self.transient:
+            self._history_length = int(state["history_length"])
+            self._update_velocity()
 
     # -- FieldSolver interface -------------------------------------------
     def _set_input(self, interface: str, key: str, values: np.ndarray) -> None:
@@ -340,6 +524,8 @@ class PoroelasticGelSolver(FieldSolver):
         self._newton.set_nodal_loads(np.hstack(dofs).astype(np.int32) if dofs else np.empty(0, np.int32),
                                      np.hstack(vals) if vals else np.empty(0))
         its = self._newton.solve()
+        if self.transient:
+            self._update_velocity()
         self.timing["newton_iterations"] += its
         log.debug("%s: Newton converged in %d iterations, corrections %s", self.name, its,
                   self._newton.history)
@@ -348,10 +534,12 @@ class PoroelasticGelSolver(FieldSolver):
         """Outputs on interface ``name`` (see the module docstring).
 
         Fluid interfaces:
-            ``superficial_velocity`` (N, 2): phi_f v_f at the nodes (units of V0),
+            ``mixture_velocity`` (N, 2): phi_f v_f + phi_s v_s at the nodes (units of
+                V0); its normal part is the volume flux into the fluid (I13).
+            ``superficial_velocity`` (N, 2): phi_f v_f at the nodes,
                 with phi_f the boundary-lumped average of 1 - phi_s0/J around each
                 node (J is discontinuous between cells; the average is rank-independent).
-            ``interstitial_velocity`` (N, 2): nodal v_f.
+            ``interstitial_velocity`` (N, 2): nodal v_f = w + v_s.
             ``traction`` (N, 2): the total traction (phi_f sigma_f + phi_s sigma_s - p I) n
                 the gel applies there, in the stress unit s.  The gel enforces I14,
                 T_total = T, weakly in its mixture equation, so this is the input T
@@ -366,7 +554,14 @@ class PoroelasticGelSolver(FieldSolver):
         if name in self._fluid:
             data = self._fluid[name]
             v = nodes.from_array(x, parent=True)
-            return {"superficial_velocity": self._phi_f_nodal(data["scalar"]) * v,
+            phi_f = self._phi_f_nodal(data["scalar"])
+            mixture = phi_f * v
+            if self.transient:
+                v_s = data["displacement_nodes"].from_function(self._velocity)
+                mixture = phi_f * v + v_s          # phi_f (w + v_s) + phi_s v_s
+                v = v + v_s
+            return {"mixture_velocity": mixture,
+                    "superficial_velocity": phi_f * v,
                     "interstitial_velocity": v,
                     "traction": data["traction"].copy(),
                     "pressure": self._pressure_nodal(data["scalar"])}
@@ -390,9 +585,24 @@ class PoroelasticGelSolver(FieldSolver):
         return scalar_nodes.from_function(self._p2)
 
     # -- accessors ---------------------------------------------------------
-    def interstitial_velocity(self) -> fem.Function:
-        """v_f (collapsed P2 vector Function), units of V0."""
+    def relative_velocity(self) -> fem.Function:
+        """w = v_f - v_s (collapsed P2 vector Function), units of V0."""
         return self.state.sub(0).collapse()
+
+    def network_velocity(self) -> fem.Function:
+        """v_s (P2 vector Function, units of V0; zero in a steady solver)."""
+        if not self.transient:
+            return fem.Function(self._sub[1][0], name="v_s")
+        v = fem.Function(self._sub[1][0], name="v_s")
+        v.x.array[:] = self._velocity.x.array
+        return v
+
+    def interstitial_velocity(self) -> fem.Function:
+        """v_f = w + v_s (collapsed P2 vector Function), units of V0."""
+        v_f = self.relative_velocity()
+        if self.transient:
+            v_f.x.array.reshape(-1, 2)[:] += self._velocity.x.array.reshape(-1, 2)[self._u_block_of_w]
+        return v_f
 
     def displacement(self) -> fem.Function:
         """u (collapsed P2 vector Function) in units of d L0: u_s = d * u."""
@@ -422,7 +632,8 @@ class PoroelasticGelSolver(FieldSolver):
 
     def total_stress(self):
         """Total stress phi_f sigma_f + phi_s sigma_s - p I in units of mu_s (UFL)."""
-        v_f, u, p = ufl.split(self.state)
+        rel, u, p = ufl.split(self.state)
+        v_f = rel + self.v_s if self.transient else rel
         return self._stress_unit * forms.total_stress(v_f, u, p, self.coefficients)
 
     def stress_function(self, which: str = "network") -> fem.Function:
@@ -438,12 +649,17 @@ class PoroelasticGelSolver(FieldSolver):
         return interpolate(exprs[which](), T)
 
     def reset(self) -> None:
-        """Zero the state (the next solve starts from rest)."""
+        """Zero the state and the history (the next solve starts from rest)."""
         self.state.x.array[:] = 0.0
         self.state.x.scatter_forward()
+        if self.transient:
+            for f in self._history:
+                f.x.array[:] = 0.0
+            self._history_length = 0
+            self._update_velocity()
 
     def norms(self) -> dict[str, float]:
-        """Global Euclidean norms of the owned nodal values of v_f, u, p (for checks and logs)."""
+        """Global Euclidean norms of the owned nodal values of w, u, p (for checks and logs)."""
         out = {}
         comm = self.mesh.comm
         for i, f in enumerate(FIELDS):

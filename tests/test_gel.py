@@ -483,8 +483,8 @@ def test_solver_argument_validation():
         PoroelasticGelSolver(msh, ft, prm, no_slip=99)
     with pytest.raises(ValueError, match="field"):
         PoroelasticGelSolver(msh, ft, prm, dirichlet=[(LEFT, "pressure", 0.0)])
-    with pytest.raises(NotImplementedError, match="dt"):
-        PoroelasticGelSolver(msh, ft, prm, dt=0.1)
+    with pytest.raises(RuntimeError, match="transient"):
+        PoroelasticGelSolver(msh, ft, prm, no_slip=BOTTOM).set_time_step(0.1)
     gel = PoroelasticGelSolver(msh, ft, prm, no_slip=BOTTOM, fluid_interfaces={"top": TOP})
     with pytest.raises(ValueError, match="shape"):
         gel.set_interface_data("top", traction=np.zeros((3, 2)))

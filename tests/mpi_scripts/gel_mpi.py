@@ -56,7 +56,7 @@ u_scale = params.displacement_scale / params.Ca               # solver's displac
 result = {"flux": top["superficial_velocity"].tolist(), "interstitial": top["interstitial_velocity"].tolist(),
           "pressure": (top["pressure"].ravel() / to_solver).tolist(),
           "displacement": (u_scale * bottom["displacement"]).tolist(),
-          "norm_v_f": norms["v_f"], "norm_u": u_scale * norms["u"], "norm_p": norms["p"] / to_solver,
+          "norm_v_f": norms["w"], "norm_u": u_scale * norms["u"], "norm_p": norms["p"] / to_solver,
           "factorizations": factorizations,
           "solve_times": times, "refactor_time": t_refactor, "dofs": gel.W.dofmap.index_map.size_global,
           "ranks": comm.size, "units": units, "stats": dict(gel.newton.stats)}
