@@ -42,7 +42,7 @@ from dolfinx import fem
 from cell import forms
 from femtools.functions import quadrature_measure, von_mises
 from femtools.interface import InterfaceNodes
-from femtools.linalg import NewtonSolver, assemble_residual_vector
+from femtools.linalg import NewtonSolver, assemble_residual_vector, jacobian_at_rest
 from femtools.solver import FieldSolver
 
 __all__ = ["NeoHookeanCellSolver"]
@@ -250,8 +250,9 @@ class NeoHookeanCellSolver(FieldSolver):
             pin_bcs, self._pins = self._point_constraints()
             bcs += pin_bcs
         self.bcs = bcs
+        # kept Jacobian: the linearisation at rest (the same matrix whenever assembled; exact at large strain)
         self._newton = NewtonSolver(F, self.u, bcs, name=self.name, rtol=newton_rtol, reuse=reuse,
-                                    petsc_options=petsc_options)
+                                    petsc_options=petsc_options, J_reference=jacobian_at_rest(F, self.u))
         self._compiled: dict[str, object] = {}
         self.timing["setup"] = time.perf_counter() - t0
 

@@ -322,6 +322,10 @@ class CouplingConfig:
         check_replicated: Under MPI, check that participants' interface points
             and outputs are identical on all ranks (debugging aid; one
             allgather per array).
+        extrapolation_order: Initial guess of a time window's data: 0 = the
+            previous window's converged values, 1 = their linear extrapolation
+            from the last two windows (variable dt allowed; preCICE's
+            ``extrapolation-order``).
     """
 
     scheme: str = "serial-implicit"
@@ -335,9 +339,13 @@ class CouplingConfig:
     verbose: bool = True
     record_data: bool = False
     check_replicated: bool = False
+    extrapolation_order: int = 0
 
     def __post_init__(self) -> None:
         where = "coupling"
+        _integer(where, "extrapolation_order", self.extrapolation_order, minimum=0)
+        if self.extrapolation_order > 1:
+            raise ValueError(f"{where}.extrapolation_order = {self.extrapolation_order} must be 0 or 1")
         _choice(where, "scheme", self.scheme, SCHEMES)
         if isinstance(self.order, str) or not all(isinstance(o, str) and o for o in self.order):
             raise ValueError(f"{where}.order = {self.order!r} must be a list of participant names")

@@ -34,6 +34,7 @@ rank 0 so that every rank takes the same decision.
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import math
 import os
@@ -126,6 +127,8 @@ class CouplingScheme:
         self.measures = self._build_measures()
         self.time = 0.0
         self.window = 0
+        # converged values at the end of the last two windows, with their times (extrapolation)
+        self.window_ends: list[tuple[float, dict[str, np.ndarray]]] = []
         self.history: list[WindowRecord] = []
         self.recording: Recording | None = Recording() if self.config.record_data else None
         self.result: CouplingResult | None = None
@@ -396,9 +399,26 @@ class CouplingScheme:
                      f"; its convergence measure: {self._history_text(rec, name)}")
         return text
 
+    def _extrapolate(self, t: float, dt: float) -> None:
+        """Linear extrapolation of the last two windows' end values to t + dt (extrapolation_order 1)."""
+        if self.config.extrapolation_order == 0 or len(self.window_ends) < 2:
+            return
+        (t0, v0), (t1, v1) = self.window_ends[-2], self.window_ends[-1]
+        if abs(t1 - t) > 1e-12 * max(abs(t), dt) or t1 <= t0:
+            return
+        ratio = dt / (t1 - t0)
+        self.values = {n: v1[n] + ratio * (v1[n] - v0[n]) for n in self.values}
+
+    def _window_end(self, t_end: float) -> None:
+        self.window_ends = (self.window_ends + [(t_end, {n: v.copy() for n, v in self.values.items()})])[-2:]
+
     def _run_window(self, t: float | None, dt: float | None) -> WindowRecord:
         transient = t is not None
         rec = WindowRecord(window=self.window, time=t, dt=dt)
+        if transient:
+            if not self.window_ends:
+                self._window_end(t)            # the initial values belong to the start time
+            self._extrapolate(t, dt)
         states: dict[str, Any] = {}
         if transient and self.implicit:
             for name in self.order:
@@ -549,15 +569,63 @@ class CouplingScheme:
                              f"whole multiple of dt = {dt}")
         windows: list[WindowRecord] = []
         for _ in range(n):
-            t = self.time
-            rec = self._run_window(t, dt)
-            keep_going = self._finish_window(rec, windows)
-            if not keep_going:
+            if not self._advance(dt, windows):
                 break
-            self.time = t + dt
-            self.window += 1
         self.result = CouplingResult.from_windows(windows, list(self.data))
         return self.result
+
+    def advance_window(self, dt: float) -> WindowRecord:
+        """Run the one time window ``[time, time + dt]`` (any ``dt > 0``: variable steps).
+
+        Returns:
+            The :class:`WindowRecord`; :attr:`time` and :attr:`window` move on
+            unless the window ended without convergence under
+            ``on_max_iterations = "return"`` (then ``record.converged`` is False).
+
+        Raises:
+            ValueError: If ``dt`` is not a positive finite number.
+            CouplingDivergedError, CouplingNotConvergedError: as :meth:`run`.
+        """
+        if isinstance(dt, bool) or not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0.0):
+            raise ValueError(f"advance_window: dt = {dt!r} must be a positive number")
+        windows: list[WindowRecord] = []
+        self._advance(float(dt), windows)
+        self.result = CouplingResult.from_windows(windows, list(self.data))
+        return windows[-1]
+
+    def _advance(self, dt: float, windows: list[WindowRecord]) -> bool:
+        t = self.time
+        rec = self._run_window(t, dt)
+        if not self._finish_window(rec, windows):
+            return False
+        self.time = t + dt
+        self.window += 1
+        self._window_end(self.time)
+        return True
+
+    # ------------------------------------------------------------------ in-memory state
+    def snapshot(self) -> dict[str, Any]:
+        """A copy of everything a window changes: data values, acceleration, time, participants.
+
+        :meth:`restore` returns the scheme (and every participant, through its
+        ``save_state``/``load_state``) to this point, e.g. to repeat a time
+        window with a smaller ``dt`` after an error estimate rejected it.
+        """
+        return {"values": {n: v.copy() for n, v in self.values.items()},
+                "acceleration": copy.deepcopy(self.acceleration.state_dict()),
+                "window_ends": copy.deepcopy(self.window_ends),
+                "time": self.time, "window": self.window, "history": len(self.history),
+                "participants": {name: self._call(name, "save_state") for name in self.order}}
+
+    def restore(self, snapshot: Mapping[str, Any]) -> None:
+        """Return to a :meth:`snapshot` (the window records after it are dropped)."""
+        self.values = {n: v.copy() for n, v in snapshot["values"].items()}
+        self.acceleration.load_state_dict(copy.deepcopy(snapshot["acceleration"]))
+        self.window_ends = copy.deepcopy(snapshot["window_ends"])
+        self.time, self.window = snapshot["time"], snapshot["window"]
+        del self.history[snapshot["history"]:]
+        for name, state in snapshot["participants"].items():
+            self._call(name, "load_state", state)
 
     # ------------------------------------------------------------------ records
     def write_records(self, directory: str | os.PathLike) -> dict[str, str]:
@@ -572,7 +640,8 @@ class CouplingScheme:
         return paths
 
     # ------------------------------------------------------------------ restart
-    def save_checkpoint(self, path: str | os.PathLike, include_participants: bool = True) -> None:
+    def save_checkpoint(self, path: str | os.PathLike, include_participants: bool = True,
+                        extra: Any = None) -> None:
         """Save the coupling state so that a restarted run reproduces an uninterrupted one.
 
         Saved: time and window index, the current value of every data, the
@@ -580,8 +649,11 @@ class CouplingScheme:
         preconditioner weights, inverse Jacobian) and, if
         ``include_participants``, each participant's ``save_state()`` on every
         rank (states must consist of numpy arrays, numbers, strings, lists,
-        tuples and dicts; participants raising ``NotImplementedError`` are skipped).
-        Only rank 0 writes the ``.npz`` file.
+        tuples and dicts; participants raising ``NotImplementedError`` are skipped),
+        and ``extra``, the application's own state (same types; each rank's
+        own value), which :meth:`load_checkpoint` returns on that rank.  Only rank 0 writes the ``.npz``
+        file, under a temporary name first: an interrupted write never replaces
+        a complete checkpoint.
         """
         participant_states: dict[str, Any] = {}
         if include_participants:
@@ -596,12 +668,15 @@ class CouplingScheme:
                  "ranks": self.comm.Get_size(), "data": list(self.data),
                  "accelerated": list(self.accelerated),
                  "values": {n: v.copy() for n, v in self.values.items()},
+                 "window_ends": [[t, ends] for t, ends in self.window_ends],
                  "acceleration": self.acceleration.state_dict(),
-                 "participants": participant_states}
+                 "participants": participant_states, "extra": self.comm.gather(extra, root=0)}
         error: str | None = None
         if self._is_root():
+            tmp = f"{os.fspath(path)}.tmp"
             try:
-                save_npz(path, state)
+                save_npz(tmp, state)
+                os.replace(tmp, path)
             except TypeError as exc:
                 error = (f"save_checkpoint: a participant state cannot be saved ({exc}); pass "
                          f"include_participants=False and save participant states yourself")
@@ -611,8 +686,10 @@ class CouplingScheme:
         if error is not None:
             raise TypeError(error)
 
-    def load_checkpoint(self, path: str | os.PathLike, include_participants: bool = True) -> None:
+    def load_checkpoint(self, path: str | os.PathLike, include_participants: bool = True) -> Any:
         """Restore a state written by :meth:`save_checkpoint` (all ranks read the file).
+
+        Returns this rank's ``extra`` application state saved with it (``None`` if none).
 
         Raises:
             ValueError: If the checkpoint belongs to another scheme, other data
@@ -633,6 +710,8 @@ class CouplingScheme:
             values[name] = self._as_data_array(name, state["values"][name], f"{path}")
         self.acceleration.load_state_dict(state["acceleration"])
         self.values = values
+        self.window_ends = [(float(t), {n: np.array(v[n], dtype=float) for n in self.data})
+                            for t, v in state.get("window_ends", [])]
         self.time = float(state["time"])
         self.window = int(state["window"])
         if include_participants and state["participants"]:
@@ -645,6 +724,13 @@ class CouplingScheme:
                     raise ValueError(f"{path}: checkpoint has a state of unknown participant {name!r}")
                 if per_rank is not None and per_rank[rank] is not None:
                     self.participants[name].load_state(per_rank[rank])
+        extra = state.get("extra")
+        if extra is None:
+            return None
+        if len(extra) != self.comm.Get_size():
+            raise ValueError(f"{path}: the application state was saved on {len(extra)} ranks, "
+                             f"now running on {self.comm.Get_size()}")
+        return extra[self.comm.Get_rank()]
 
 
 class SerialImplicitScheme(CouplingScheme):

@@ -58,10 +58,44 @@ def atomic_path(path: str, comm: MPI.Comm = MPI.COMM_WORLD):
         yield tmp
 
 
+def _promote(work: str, path: str) -> None:
+    """Replace ``path`` by ``work``: the old results aside, the new ones in, then the old ones deleted."""
+    old = None
+    if os.path.exists(path):
+        old = tempfile.mkdtemp(prefix=".old-" + os.path.basename(path) + "-", dir=os.path.dirname(path))
+        os.rmdir(old)
+        os.replace(path, old)
+    os.replace(work, path)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
 @contextlib.contextmanager
-def atomic_directory(path: str, comm: MPI.Comm = MPI.COMM_WORLD):
-    """Yield a temporary directory; on success it replaces ``path`` as a whole."""
+def atomic_directory(path: str, comm: MPI.Comm = MPI.COMM_WORLD, partial: bool = False):
+    """Yield a temporary directory; on success it replaces ``path`` as a whole.
+
+    ``partial=True``: the working directory is the fixed sibling
+    ``path + ".partial"`` (created if missing, reused if present, e.g. to
+    resume an interrupted run from the checkpoint it holds); it is kept on
+    failure or interruption and promoted to ``path`` on success.
+    """
     path = os.path.abspath(path)
+    if partial:
+        work = path + ".partial"
+        if comm.rank == 0:
+            os.makedirs(work, exist_ok=True)
+        comm.Barrier()
+        ok = False
+        try:
+            yield work
+            ok = True
+        finally:
+            ok = comm.allreduce(ok, op=MPI.LAND)
+            comm.Barrier()
+            if ok and comm.rank == 0:
+                _promote(work, path)
+            comm.Barrier()
+        return
     tmp = None
     if comm.rank == 0:
         os.makedirs(os.path.dirname(path), exist_ok=True)

@@ -24,7 +24,7 @@ from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
 
 __all__ = ["DirectSolver", "LinearSolver", "NewtonSolver", "SolverStats", "direct_solver",
-           "assemble_residual_vector", "global_norm"]
+           "assemble_residual_vector", "global_norm", "jacobian_at_rest"]
 
 _counter = itertools.count()
 _ICNTL = re.compile(r"^mat_mumps_icntl_(\d+)$")
@@ -204,6 +204,15 @@ class NewtonSolver:
         solve could otherwise leave Newton's basin.  At small strains the
         first factorisation serves the whole coupling loop.
 
+    ``J_reference`` (optional): a Jacobian form whose coefficients do not
+    depend on the state (e.g. ``J`` with the state and the interface data
+    replaced by zero: the linearisation at rest).  It is then the kept
+    Jacobian (reuse ``"adaptive"``): the same matrix whatever the iterate it
+    is first needed at, so a run restarted from a checkpoint repeats the
+    uninterrupted run's iterates exactly.  When it stops contracting (large
+    loads) the solver switches to the exact Jacobian at the current iterate
+    until ``invalidate_jacobian()``.
+
     ``active_dofs`` (local dof indices) restricts the linear solves to those
     dofs: the others have no equation (e.g. a field outside its subdomain in
     the monolithic system) and keep their value.
@@ -213,7 +222,7 @@ class NewtonSolver:
                  name: str = "newton", rtol: float = 1e-11, max_it: int = 30,
                  reuse: str = "adaptive", contraction: float = 0.1,
                  petsc_options: dict | None = None, form_compiler_params: dict | None = None,
-                 active_dofs: np.ndarray | None = None):
+                 active_dofs: np.ndarray | None = None, J_reference: ufl.Form | None = None):
         if reuse not in ("never", "adaptive"):
             raise ValueError(f"reuse must be 'never' or 'adaptive', got {reuse!r}")
         fcp = form_compiler_params or {}
@@ -221,6 +230,7 @@ class NewtonSolver:
             J = ufl.derivative(F, u)
         self.F = fem.form(F, form_compiler_params=fcp)
         self.J = fem.form(J, form_compiler_params=fcp)
+        self.J_reference = None if J_reference is None else fem.form(J_reference, form_compiler_params=fcp)
         self.u, self.bcs, self.name = u, bcs, name
         self.rtol, self.max_it, self.reuse, self.contraction = rtol, max_it, reuse, contraction
         self.stats = SolverStats()
@@ -240,6 +250,7 @@ class NewtonSolver:
         self.solver = DirectSolver(comm, name, petsc_options)
         self.ksp = self.solver.ksp
         self._have_jacobian = False
+        self._exact = self.J_reference is None or reuse == "never"   # which Jacobian is (to be) kept
         self._load_dofs, self._load_values = np.empty(0, dtype=np.int32), np.empty(0)
 
     @property
@@ -252,10 +263,17 @@ class NewtonSolver:
     def invalidate_jacobian(self) -> None:
         """Factorise again at the next iteration (e.g. coefficients of J changed)."""
         self._have_jacobian = False
+        self._exact = self.J_reference is None or self.reuse == "never"
+
+    @property
+    def uses_reference_jacobian(self) -> bool:
+        """True while the kept Jacobian is ``J_reference``."""
+        return not self._exact
 
     def _assemble_jacobian(self) -> None:
         sub = None if self._active is None else (self._active, self._A_active)
-        operator = _assemble_and_factorize(self.A, self.J, self.bcs, self.solver, self.stats, sub)
+        form = self.J if self._exact else self.J_reference
+        operator = _assemble_and_factorize(self.A, form, self.bcs, self.solver, self.stats, sub)
         if self._active is not None:
             self._A_active = operator
         self._have_jacobian = True
@@ -306,6 +324,8 @@ class NewtonSolver:
             fresh = not self._have_jacobian
             if fresh:
                 self._assemble_jacobian()
+            # the reference Jacobian is not the one at this iterate: test its steps like stale ones
+            stale = not fresh or not self._exact
             t0 = time.perf_counter()
             self._linear_solve()
             self.stats["solve_time"] += time.perf_counter() - t0
@@ -317,12 +337,13 @@ class NewtonSolver:
                 raise FloatingPointError(f"{self.name}: Newton iterate contains NaN or Inf "
                                          f"(iteration {it}, history {self.history})")
             rel = du / un if un > 0 else du
-            if (not fresh and previous is not None and rel > self.contraction * previous
+            if (stale and previous is not None and rel > self.contraction * previous
                     and rel >= 1e3 * self.rtol):
                 # the kept Jacobian does not contract: undo the step, refactorise here
                 self.u.vector.axpy(1.0, self.du)
                 self.u.x.scatter_forward()
                 self._have_jacobian = False
+                self._exact = True
                 self.stats["rejected_steps"] += 1
                 continue
             self.history.append(rel)
@@ -334,9 +355,22 @@ class NewtonSolver:
                 return it
             if self.reuse == "never" or (previous is not None and rel > self.contraction * previous):
                 self._have_jacobian = False
+                self._exact = True
             previous = rel
         raise RuntimeError(f"{self.name}: Newton did not converge in {self.max_it} iterations; "
                            f"relative corrections {['%.2e' % h for h in self.history]}")
+
+
+def jacobian_at_rest(F: ufl.Form, u: fem.Function, coefficients=()) -> ufl.Form:
+    """dF/du with ``u`` and ``coefficients`` replaced by zero Functions: the linearisation at rest.
+
+    A ``J_reference`` for :class:`NewtonSolver` that depends on no state or
+    interface data (only on Constants), so its matrix is the same whenever
+    it is assembled.
+    """
+    J = ufl.derivative(F, u)
+    zeros = {c: fem.Function(c.function_space) for c in (u, *coefficients)}
+    return ufl.replace(J, zeros)
 
 
 def assemble_residual_vector(form) -> PETSc.Vec:

@@ -281,6 +281,8 @@ class StokesSolver(FieldSolver):
 
         # -- Dirichlet conditions (interfaces first: outer boundaries win) ---------
         self._constrained = [np.empty(0, np.int32), np.empty(0, np.int32)]   # V dofs per component
+        self._boundary_values: list[tuple[fem.Function, np.ndarray]] = []     # (data, its unscaled values)
+        self.boundary_velocity_scale = 1.0
         bcs = []
         for it in self._ifaces.values():
             bcs += self._interface_bcs(it)
@@ -385,6 +387,7 @@ class StokesSolver(FieldSolver):
                                  f"or a callable, got {value!r}")
             g.x.array.reshape(-1, 2)[:] = value
         g.x.scatter_forward()
+        self._boundary_values.append((g, g.x.array.copy()))
         dofs = fem.locate_dofs_topological((self.W.sub(0), self.V), self._fdim, self._facets(tags))
         blocks = self._locate(tags)
         for c in range(2):
@@ -403,6 +406,7 @@ class StokesSolver(FieldSolver):
                 raise ValueError(f"{self.name}: component_bcs value for tags {tags} must be a float "
                                  f"or a callable, got {value!r}") from None
         g.x.scatter_forward()
+        self._boundary_values.append((g, g.x.array.copy()))
         dofs = fem.locate_dofs_topological((self.W.sub(0).sub(c), Vc), self._fdim, self._facets(tags))
         self._mark_constrained(2 * self._locate(tags) + c, c)
         return fem.dirichletbc(g, dofs, self.W.sub(0).sub(c))
@@ -589,6 +593,19 @@ class StokesSolver(FieldSolver):
             self._direction.value[:] = (1.0, 0.0) if c == 0 else (0.0, 1.0)
             force[c] = self.comm.allreduce(fem.assemble_scalar(it.force_form), op=MPI.SUM)
         return force
+
+    def scale_boundary_velocity(self, factor: float) -> None:
+        """Multiply the data of ``velocity_bcs`` and ``component_bcs`` by ``factor`` (e.g. an inflow waveform).
+
+        The factor applies to the values given at construction, not cumulatively;
+        the operator is unchanged, so no refactorisation.
+        """
+        factor = float(factor)
+        if not np.isfinite(factor):
+            raise ValueError(f"{self.name}: boundary velocity factor must be finite, got {factor}")
+        for g, base in self._boundary_values:
+            g.x.array[:] = factor * base
+        self.boundary_velocity_scale = factor
 
     def update_operator(self) -> None:
         """Re-assemble and re-factorise the Stokes operator (e.g. after changing ``mu.value``)."""

@@ -78,8 +78,9 @@ from dolfinx.fem import petsc as fem_petsc
 
 from femtools.functions import interpolate, quadrature_measure, von_mises
 from femtools.interface import InterfaceNodes
-from femtools.linalg import NewtonSolver
+from femtools.linalg import NewtonSolver, jacobian_at_rest
 from femtools.solver import FieldSolver
+from femtools.timestepping import RateHistory
 from gel import forms
 from gel.parameters import GelParameters
 
@@ -97,7 +98,6 @@ FIELDS = ("w", "u", "p")
 DEFAULT_PETSC_OPTIONS = {"mat_mumps_icntl_8": 8, "mat_mumps_icntl_14": 200}
 _FIELD_INDEX = {name: i for i, name in enumerate(FIELDS)}
 _FIELD_INDEX["v_f"] = 0     # Dirichlet data for v_f are data for w (= v_f where v_s = 0)
-TIME_SCHEMES = ("be", "bdf2")
 
 
 def _as_tags(tags, what: str) -> tuple[int, ...]:
@@ -208,8 +208,12 @@ class PoroelasticGelSolver(FieldSolver):
         self.bcs = self._build_bcs(no_slip, symmetry, dirichlet)
         self.residual_form = F
         options = dict(DEFAULT_PETSC_OPTIONS, **(petsc_options or {}))
+        # the kept Jacobian is the linearisation at rest (no state, no interface data): the same matrix
+        # whenever it is needed, e.g. after a restart; the exact one takes over at large loads
+        data = [d[k] for d in self._fluid.values() for k in ("T", "V")]
+        data += list(self.history.past) if self.transient else []
         self._newton = NewtonSolver(F, self.state, self.bcs, name=name, rtol=newton_rtol, reuse="adaptive",
-                                  petsc_options=options)
+                                    petsc_options=options, J_reference=jacobian_at_rest(F, self.state, data))
         self._build_postprocessing()
         self.timing["setup"] = time.perf_counter() - t0
         self.timing["newton_iterations"] = 0
@@ -232,8 +236,8 @@ class PoroelasticGelSolver(FieldSolver):
             return
         V_u, self._u_dofs = self._sub[1]
         self._u_dofs = np.asarray(self._u_dofs, dtype=np.int32)
-        self._history = [fem.Function(V_u, name="u_n"), fem.Function(V_u, name="u_nm1")]
-        self._rate = [fem.Constant(self.mesh, PETSc.ScalarType(0.0)) for _ in range(3)]
+        self.history = RateHistory(V_u, ufl.split(self.state)[1], self.params.displacement_scale, "u")
+        self.v_s = self.history.rate
         self._velocity = fem.Function(V_u, name="v_s")       # nodal v_s of the current state
         # the node of the u space at each node of the w space (both P2 vector spaces on this mesh)
         V_w = self._sub[0][0]
@@ -241,11 +245,6 @@ class PoroelasticGelSolver(FieldSolver):
         dist, self._u_block_of_w = scipy.spatial.cKDTree(x_u).query(x_w)
         if dist.size and dist.max() > 1e-12 * (1.0 + np.abs(x_u).max()):
             raise RuntimeError(f"{self.name}: the w and u spaces do not share their nodes")
-        self._history_length = 0                              # past states held (0, 1 or 2)
-        self.time_step: dict | None = None
-        u = ufl.split(self.state)[1]
-        c0, c1, c2 = self._rate
-        self.v_s = c0 * u + c1 * self._history[0] + c2 * self._history[1]
 
     def _build_coefficients(self, params: GelParameters) -> None:
         """Coefficients as Constants: one compiled form serves every parameter value."""
@@ -406,7 +405,8 @@ class PoroelasticGelSolver(FieldSolver):
         self.params = params
         self._assign_constants(params)
         if self.transient:
-            self._apply_rates()
+            self.history.set_scale(params.displacement_scale)
+            self._update_velocity()
         self._newton.invalidate_jacobian()
 
     # -- time stepping -------------------------------------------------------
@@ -424,86 +424,54 @@ class PoroelasticGelSolver(FieldSolver):
             dt_previous: t^n - t^{n-1} for BDF2 (default: ``dt``).
         """
         self._require_transient("set_time_step")
-        if scheme not in TIME_SCHEMES:
-            raise ValueError(f"{self.name}: time scheme must be one of {TIME_SCHEMES}, got {scheme!r}")
-        if not (np.isfinite(dt) and dt > 0):
-            raise ValueError(f"{self.name}: dt must be finite and > 0, got {dt!r}")
-        if scheme == "be":
-            a = (1.0, -1.0, 0.0)
-        else:
-            if self._history_length < 2:
-                raise RuntimeError(f"{self.name}: BDF2 needs two past states; start with one backward Euler step")
-            dt_previous = dt if dt_previous is None else float(dt_previous)
-            if not (np.isfinite(dt_previous) and dt_previous > 0):
-                raise ValueError(f"{self.name}: dt_previous must be finite and > 0, got {dt_previous!r}")
-            omega = dt / dt_previous
-            a = ((1 + 2 * omega) / (1 + omega), -(1 + omega), omega**2 / (1 + omega))
-        changed = self.time_step is None or not np.isclose(self.time_step["a"][0] / self.time_step["dt"],
-                                                          a[0] / dt, rtol=1e-14, atol=0.0)
-        self.time_step = {"dt": float(dt), "scheme": scheme, "a": a}
-        self._apply_rates()
-        if changed:
+        if self.history.set_step(dt, scheme, dt_previous):
             # the Jacobian holds (d/dt) a0: a new factorisation for a new step size or scheme
             self._newton.invalidate_jacobian()
+        self._update_velocity()
+
+    @property
+    def time_step(self) -> dict | None:
+        """The current step ``{"dt", "scheme", "a"}``, or None (steady)."""
+        return self.history.step if self.transient else None
 
     def set_steady(self) -> None:
         """v_s = 0 again: the next solves are steady (the history is kept)."""
         self._require_transient("set_steady")
-        if self.time_step is not None:
+        if self.history.set_steady():
             self._newton.invalidate_jacobian()
-        self.time_step = None
-        self._apply_rates()
-
-    def _apply_rates(self) -> None:
-        d = self.params.displacement_scale
-        a = (0.0, 0.0, 0.0) if self.time_step is None else self.time_step["a"]
-        dt = 1.0 if self.time_step is None else self.time_step["dt"]
-        for const, coefficient in zip(self._rate, a):
-            const.value = d * coefficient / dt
         self._update_velocity()
 
     def _update_velocity(self) -> None:
         """Nodal v_s of the current state (same P2 space as u, so the combination is exact)."""
-        u = self.state.x.array[self._u_dofs]
-        c0, c1, c2 = (float(c.value) for c in self._rate)
-        self._velocity.x.array[:] = c0 * u + c1 * self._history[0].x.array + c2 * self._history[1].x.array
+        self._velocity.x.array[:] = self.history.nodal_rate(self.state.x.array[self._u_dofs])
 
     def push_history(self) -> None:
         """Accept the current state as the newest past state: u^{n-1} <- u^n <- u."""
         self._require_transient("push_history")
-        u_n, u_nm1 = self._history
-        u_nm1.x.array[:] = u_n.x.array
-        u_n.x.array[:] = self.state.x.array[self._u_dofs]
-        self._history_length = min(self._history_length + 1, 2)
+        self.history.push(self.state.x.array[self._u_dofs])
         self._update_velocity()
 
     @property
     def history_length(self) -> int:
         """Number of past states held (0, 1 or 2): 2 are needed for BDF2."""
         self._require_transient("history_length")
-        return self._history_length
+        return self.history.length
 
     def get_state(self) -> dict[str, np.ndarray]:
         """A copy of the local state: the unknowns and the displacement history (this rank's arrays)."""
         state = {"state": self.state.x.array.copy()}
         if self.transient:
-            state.update(u_n=self._history[0].x.array.copy(), u_nm1=self._history[1].x.array.copy(),
-                         history_length=np.array(self._history_length))
+            state.update(self.history.state())
         return state
 
     def set_state(self, state: typing.Mapping[str, np.ndarray]) -> None:
         """Restore a state returned by ``get_state`` on this rank (copies from it)."""
-        arrays = [("state", self.state)]
+        values = np.asarray(state["state"], dtype=float)
+        if values.shape != self.state.x.array.shape:
+            raise ValueError(f"{self.name}: state has shape {values.shape}, expected {self.state.x.array.shape}")
+        self.state.x.array[:] = values
         if self.transient:
-            arrays += [("u_n", self._history[0]), ("u_nm1", self._history[1])]
-        for key, f in arrays:
-            values = np.asarray(state[key], dtype=float)
-            if values.shape != f.x.array.shape:
-                raise ValueError(f"{self.name}: state[{key!r}] has shape {values.shape}, "
-                                 f"expected {f.x.array.shape}")
-            f.x.array[:] = values
-        if self.transient:
-            self._history_length = int(state["history_length"])
+            self.history.load(state)
             self._update_velocity()
 
     # -- FieldSolver interface -------------------------------------------
@@ -585,32 +553,37 @@ class PoroelasticGelSolver(FieldSolver):
         return scalar_nodes.from_function(self._p2)
 
     # -- accessors ---------------------------------------------------------
-    def relative_velocity(self) -> fem.Function:
-        """w = v_f - v_s (collapsed P2 vector Function), units of V0."""
-        return self.state.sub(0).collapse()
+    def _field(self, i: int, out: fem.Function | None, name: str) -> fem.Function:
+        """Field i of the state as a Function on its collapsed space (``out`` is filled if given)."""
+        space, parent = self._sub[i]
+        f = fem.Function(space, name=name) if out is None else out
+        f.x.array[:] = self.state.x.array[parent]
+        return f
 
-    def network_velocity(self) -> fem.Function:
-        """v_s (P2 vector Function, units of V0; zero in a steady solver)."""
-        if not self.transient:
-            return fem.Function(self._sub[1][0], name="v_s")
-        v = fem.Function(self._sub[1][0], name="v_s")
-        v.x.array[:] = self._velocity.x.array
+    def relative_velocity(self, out: fem.Function | None = None) -> fem.Function:
+        """w = v_f - v_s (collapsed P2 vector Function), units of V0."""
+        return self._field(0, out, "w")
+
+    def network_velocity(self, out: fem.Function | None = None) -> fem.Function:
+        """v_s (P2 vector Function on the displacement's space, units of V0; zero in a steady solver)."""
+        v = fem.Function(self._sub[1][0], name="v_s") if out is None else out
+        v.x.array[:] = self._velocity.x.array if self.transient else 0.0
         return v
 
-    def interstitial_velocity(self) -> fem.Function:
+    def interstitial_velocity(self, out: fem.Function | None = None) -> fem.Function:
         """v_f = w + v_s (collapsed P2 vector Function), units of V0."""
-        v_f = self.relative_velocity()
+        v_f = self._field(0, out, "v_f")
         if self.transient:
             v_f.x.array.reshape(-1, 2)[:] += self._velocity.x.array.reshape(-1, 2)[self._u_block_of_w]
         return v_f
 
-    def displacement(self) -> fem.Function:
+    def displacement(self, out: fem.Function | None = None) -> fem.Function:
         """u (collapsed P2 vector Function) in units of d L0: u_s = d * u."""
-        return self.state.sub(1).collapse()
+        return self._field(1, out, "u")
 
-    def pore_pressure(self) -> fem.Function:
+    def pore_pressure(self, out: fem.Function | None = None) -> fem.Function:
         """p (collapsed P1 Function) in the stress unit s: p_paper = s * p."""
-        return self.state.sub(2).collapse()
+        return self._field(2, out, "p")
 
     @property
     def newton(self) -> NewtonSolver:
@@ -653,9 +626,7 @@ class PoroelasticGelSolver(FieldSolver):
         self.state.x.array[:] = 0.0
         self.state.x.scatter_forward()
         if self.transient:
-            for f in self._history:
-                f.x.array[:] = 0.0
-            self._history_length = 0
+            self.history.reset()
             self._update_velocity()
 
     def norms(self) -> dict[str, float]:

@@ -158,14 +158,16 @@ def cmd_mesh(args: argparse.Namespace) -> int:
 
 
 # --------------------------------------------------------------------------- run
-SCHEMES = ("serial", "parallel")
+SCHEMES = ("serial", "parallel", "serial-explicit", "parallel-explicit")
 ACCELERATIONS = ("none", "constant", "aitken", "iqn-ils", "iqn-imvj")
 
 
 def _add_solver_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("solver options")
     g.add_argument("--scheme", choices=SCHEMES, default="serial",
-                   help="coupling scheme: serial (Gauss-Seidel: fluid, gel, cell) or parallel (Jacobi)")
+                   help="coupling scheme: serial (Gauss-Seidel: fluid, gel, cell) or parallel (Jacobi), implicit; "
+                        "serial-explicit / parallel-explicit: one exchange per time window (time-dependent "
+                        "runs, for comparison)")
     g.add_argument("--acceleration", choices=ACCELERATIONS, default="iqn-ils",
                    help="coupling acceleration (default iqn-ils)")
     g.add_argument("--gamma2", choices=("dirichlet", "robin"), default="dirichlet",
@@ -176,8 +178,65 @@ def _add_solver_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--quiet", action="store_true", help="no per-iteration coupling progress")
 
 
+def _add_time_arguments(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("time-dependent runs (model.md section 8; times in the paper's unit L0/V0)")
+    g.add_argument("--transient", action="store_true", default=None,
+                   help="integrate in time from rest instead of solving the steady state")
+    g.add_argument("--dt", type=_number, metavar="DT",
+                   help="time step (adaptive: the first one); default: consolidation time / 40 "
+                        "(adaptive: Kelvin-Voigt time / 10)")
+    g.add_argument("--t-end", type=_number, metavar="T", help="end time (default: until steady)")
+    g.add_argument("--until-steady", action="store_true", default=None,
+                   help="stop when the relative change per consolidation time is below --steady-tol")
+    g.add_argument("--time-scheme", choices=("be", "bdf2"), default=None,
+                   help="backward Euler (default) or BDF2 (started by one backward Euler step)")
+    g.add_argument("--adaptive", action="store_true", default=None,
+                   help="adaptive dt from a local error estimate (tolerance --time-tol)")
+    g.add_argument("--time-tol", type=_number, metavar="TOL", help="relative local error per step (default 1e-3)")
+    g.add_argument("--steady-tol", type=_number, metavar="TOL",
+                   help="steady when the relative change per consolidation time is below TOL (default 1e-4)")
+    g.add_argument("--inflow", metavar="SPEC",
+                   help="inflow V0 f(t): step (default), ramp:T, sine:MEAN,AMP,PERIOD, square:ON,OFF, "
+                        "table:FILE.csv")
+    g.add_argument("--output-every", type=int, metavar="N", help="an XDMF frame every N windows (default 5)")
+    g.add_argument("--resume", metavar="DIR",
+                   help="continue the interrupted time-dependent run whose --out was DIR from DIR.partial/")
+
+
+def _time_overrides(args: argparse.Namespace) -> dict:
+    return {"transient": args.transient, "dt": args.dt, "t_end": args.t_end, "until_steady": args.until_steady,
+            "scheme": args.time_scheme, "adaptive": args.adaptive, "time_tol": args.time_tol,
+            "steady_tol": args.steady_tol, "inflow": args.inflow, "output_every": args.output_every}
+
+
+def time_settings_from_args(args: argparse.Namespace, params: CaseParameters):
+    """The validated TimeSettings: ``[time]`` of the case file, then the command-line options."""
+    from gelcell.timesettings import TimeSettings
+    base = os.path.dirname(os.path.abspath(args.config)) if args.config else None
+    return TimeSettings.from_dict(params.time, _time_overrides(args), source=args.config or "the command line",
+                                  base_dir=base)
+
+
 def cmd_run(args: argparse.Namespace) -> int:
+    if args.resume is not None:
+        return _cmd_resume(args)
+    if args.out is None:
+        raise ParameterError("give the output directory: --out DIR")
     params = case_parameters_from_args(args)         # validated before any meshing
+    settings = time_settings_from_args(args, params)
+    if settings.transient:
+        if args.compare_no_cell:
+            raise ParameterError("--compare-no-cell is for steady runs, not with --transient")
+        from gelcell.transient import run_transient_case
+        run_transient_case(params, settings, args.out, monolithic=args.monolithic, scheme=args.scheme,
+                           acceleration=args.acceleration, comm=MPI.COMM_WORLD, figures=not args.no_figures,
+                           gamma2=args.gamma2)
+        return 0
+    given = [k for k, v in _time_overrides(args).items() if v is not None and k != "transient"]
+    if given:
+        raise ParameterError(f"--{given[0].replace('_', '-')} is an option of time-dependent runs: add --transient")
+    if args.scheme.endswith("explicit"):
+        raise ParameterError(f"--scheme {args.scheme} exchanges once per time window: add --transient")
     from gelcell.results import gamma_profiles
     from gelcell.runner import report, run_case, solve_partitioned
     comm = MPI.COMM_WORLD
@@ -192,6 +251,35 @@ def cmd_run(args: argparse.Namespace) -> int:
     run_case(params, args.out, monolithic=args.monolithic, scheme=args.scheme, acceleration=args.acceleration,
              comm=comm, verbose=not args.quiet, figures=not args.no_figures, overlay_profiles=overlay,
              extra_json=extra, gamma2=args.gamma2)
+    return 0
+
+
+def _cmd_resume(args: argparse.Namespace) -> int:
+    """``gelcell run [case options] --resume DIR``: the case and settings come from DIR.partial/."""
+    from gelcell.timesettings import TimeSettings
+    from gelcell.transient import check_resume, read_run_record, run_transient_case
+    if args.out is not None and os.path.abspath(args.out) != os.path.abspath(args.resume):
+        raise ParameterError(f"--resume {args.resume} continues the run whose --out was {args.resume}; "
+                             f"do not give another --out ({args.out})")
+    record = read_run_record(args.resume)
+    given_params = case_parameters_from_args(args) if (args.case or args.config) else None
+    overrides = _time_overrides(args)
+    given_settings = None
+    if any(v is not None for k, v in overrides.items() if k != "transient") or args.config:
+        base = given_params.time if given_params is not None else {}
+        given_settings = TimeSettings.from_dict(base, {**overrides, "transient": True})
+    explicit = any(a.startswith(("--scheme", "--acceleration", "--gamma2", "--monolithic"))
+                   for a in sys.argv[1:]) if args.argv is None else any(
+                   a.startswith(("--scheme", "--acceleration", "--gamma2", "--monolithic")) for a in args.argv)
+    method = ({"monolithic": bool(args.monolithic), "scheme": args.scheme, "acceleration": args.acceleration,
+               "gamma2": args.gamma2, "coupling": record["method"].get("coupling", {})} if explicit else None)
+    check_resume(record, given_params, given_settings, method, args.resume)
+    params = CaseParameters.from_dict(record["case"], source=f"{args.resume}.partial/run.json")
+    settings = TimeSettings.from_dict(record["time"], source=f"{args.resume}.partial/run.json")
+    m = record["method"]
+    run_transient_case(params, settings, args.resume, monolithic=m["monolithic"], scheme=m["scheme"],
+                       acceleration=m["acceleration"], coupling=m.get("coupling"), comm=MPI.COMM_WORLD,
+                       figures=not args.no_figures, gamma2=m["gamma2"], resume=True)
     return 0
 
 
@@ -258,13 +346,19 @@ def build_parser() -> argparse.ArgumentParser:
                                    "quantity, dimensionless and SI), fluid.xdmf/gel.xdmf/cell.xdmf (fields "
                                    "for ParaView), gamma1_profiles.h5/.csv, coupling/ (iteration and "
                                    "convergence logs) and PNG figures.  DIR is replaced only when "
-                                   "everything has been written.")
+                                   "everything has been written.  With --transient the case is integrated "
+                                   "in time from rest: one progress line per window, and DIR also gets "
+                                   "timeseries.csv/.h5, trajectory.png, iterations.png and the fields at "
+                                   "several times in the XDMF files; while it runs (and after an "
+                                   "interruption) DIR.partial/ holds the last window's checkpoint, which "
+                                   "--resume DIR continues.")
     add_case_arguments(p)
     _add_solver_arguments(p)
+    _add_time_arguments(p)
     p.add_argument("--compare-no-cell", action="store_true",
                    help="also solve the case without the cell and overlay its Gamma1 profiles")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
-    p.add_argument("--out", required=True, metavar="DIR", help="output directory (replaced)")
+    p.add_argument("--out", metavar="DIR", help="output directory (replaced; required unless --resume)")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("sweep", help="run a case for several values of one parameter",
@@ -302,6 +396,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: typing.Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = None if argv is None else list(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

@@ -25,13 +25,26 @@ Data (per fluid interface G in Gamma1, Gamma3, all on matching nodes):
     G/traction               fluid -> gel   T_F, the fluid's traction on the gel
     G/velocity               fluid -> gel   V
     G/gel_traction           gel -> fluid   T_G (total traction the gel applies)
-    G/superficial_velocity   gel -> fluid   phi_f v_f (normal part = flux q_G)
+    G/mixture_velocity       gel -> fluid   phi_f v_f + phi_s v_s (normal part = flux q_G, I13)
     G/interstitial_velocity  gel -> fluid   v_f (tangential part enters I16)
     Gamma2/displacement      gel -> cell    u_s
     Gamma2/force             cell -> gel    nodal force of the cell on the gel
 
 Units inside the solvers: velocity V0, length L0, stress Ca mu_s (= mu V0/L0),
 displacement Ca L0 (CaseParameters.stress_scale / displacement_scale).
+
+Time-dependent runs (model.md section 8; ``Device(..., transient=True)``).
+Stokes and the cell are quasi-static: solved as equilibria at t + dt in each
+window.  The gel carries the time derivative v_s = du_s/dt (backward Euler
+or BDF2, ``gel.solver``).  On Gamma2 the gel enforces v_f = v_s (w = 0) and
+receives the cell's force; the cell receives u_s, so v_c = v_s there because
+both are the same time difference of the same nodal displacements: Gamma2
+carries the displacement, and the time derivative follows from it.  The
+participants implement the coupling library's window protocol:
+``save_state`` / ``load_state`` (the gel's unknowns and displacement history,
+the cell's displacement as Newton's initial guess) and ``advance(t, dt)``
+(the inflow V0 f(t + dt) for the fluid; the history shift and the BDF
+coefficients for the gel).
 """
 
 from __future__ import annotations
@@ -47,6 +60,7 @@ import coupling as cp
 from cell import NeoHookeanCellSolver
 from fluid import FluidInterface, StokesSolver
 from gel import GelParameters, PoroelasticGelSolver
+from femtools.timestepping import WindowClock
 from gelcell.boundaries import DeviceBoundaries, device_boundaries
 from gelcell.geometry import build_device
 from gelcell.parameters import CaseParameters
@@ -55,7 +69,7 @@ __all__ = ["Device", "FluidParticipant", "GelParticipant", "CellParticipant", "c
            "default_robin_coefficient", "coupling_config"]
 
 FLUID_TO_GEL = ("traction", "velocity")
-GEL_TO_FLUID = ("gel_traction", "superficial_velocity", "interstitial_velocity")
+GEL_TO_FLUID = ("gel_traction", "mixture_velocity", "interstitial_velocity")
 
 
 def default_robin_coefficient(params: CaseParameters) -> float:
@@ -150,26 +164,40 @@ class FluidParticipant(cp.Participant):
     Fluid convention: t = (Sigma - P I) n_F is the traction ON the fluid, n_F
     its outward normal (= -n).  The model's conditions become
 
-        t.n_F + alpha_n V.n_F = g_N.n_F,   g_N = -T_G + alpha_n phi_f v_f
+        t.n_F + alpha_n V.n_F = g_N.n_F,   g_N = -T_G + alpha_n q_G
         t_tau + alpha_t V_tau = g_T,tau,   g_T = alpha_t v_f,  alpha_t = (Ca/s)/beta
 
-    and the fluid's traction on the gel is T_F = -t.
+    with q_G = phi_f v_f + phi_s v_s the gel's mixture velocity, and the
+    fluid's traction on the gel is T_F = -t.  Quasi-static in time: the
+    window [t, t + dt] solves Stokes at t + dt with the inflow scaled by
+    ``inflow(t + dt)`` (no state of its own).
     """
 
     name = "fluid"
 
     def __init__(self, solver: StokesSolver, interfaces: typing.Iterable[str], alpha_n: float,
-                 alpha_t: float):
+                 alpha_t: float, inflow: typing.Callable[[float], float] | None = None):
         self.solver, self.interfaces = solver, list(interfaces)
         self.alpha_n, self.alpha_t = float(alpha_n), float(alpha_t)
+        self.inflow = inflow
 
     def interface_points(self, mesh_name: str) -> np.ndarray:
         return self.solver.interface_points(mesh_name)
 
+    def save_state(self):
+        return {}
+
+    def load_state(self, state) -> None:
+        pass
+
+    def advance(self, t: float, dt: float) -> None:
+        if self.inflow is not None:
+            self.solver.scale_boundary_velocity(self.inflow(t + dt))
+
     def solve(self, inputs):
         for g in self.interfaces:
             T_G = inputs[f"{g}/gel_traction"]
-            q = inputs[f"{g}/superficial_velocity"]
+            q = inputs[f"{g}/mixture_velocity"]
             v_f = inputs[f"{g}/interstitial_velocity"]
             self.solver.set_interface_data(g, robin_normal=-T_G + self.alpha_n * q,
                                            robin_tangential=self.alpha_t * v_f)
@@ -183,18 +211,38 @@ class FluidParticipant(cp.Participant):
 
 
 class GelParticipant(cp.Participant):
-    """The gel solver seen by the coupling: I14, I15, I17 on Gamma1/Gamma3, Neumann on Gamma2."""
+    """The gel solver seen by the coupling: I14, I15, I17 on Gamma1/Gamma3, Neumann on Gamma2.
+
+    Time windows: ``advance(t, dt)`` makes the state at t the newest past
+    state (once per window: the history carries the time it belongs to, so
+    calling it again after ``load_state`` is idempotent) and sets the time
+    step: backward Euler in the first window and for ``time_scheme = "be"``,
+    variable-step BDF2 afterwards for ``"bdf2"``.
+    """
 
     name = "gel"
 
     def __init__(self, solver: PoroelasticGelSolver, fluid_interfaces: typing.Iterable[str],
-                 cell_interfaces: typing.Iterable[str], gamma2: str = "dirichlet"):
+                 cell_interfaces: typing.Iterable[str], gamma2: str = "dirichlet",
+                 time_scheme: str = "be"):
         self.solver = solver
         self.fluid_interfaces, self.cell_interfaces = list(fluid_interfaces), list(cell_interfaces)
         self.gamma2 = gamma2
+        self.clock = WindowClock(time_scheme)
 
     def interface_points(self, mesh_name: str) -> np.ndarray:
         return self.solver.interface_points(mesh_name)
+
+    def save_state(self):
+        return {**self.solver.get_state(), "history_times": self.clock.state()}
+
+    def load_state(self, state) -> None:
+        self.solver.set_state(state)
+        self.clock.load(state["history_times"])
+
+    def advance(self, t: float, dt: float) -> None:
+        scheme, dt_previous = self.clock.enter(t, dt, self.solver.push_history)
+        self.solver.set_time_step(dt, scheme, dt_previous)
 
     def solve(self, inputs):
         for g in self.fluid_interfaces:
@@ -212,7 +260,7 @@ class GelParticipant(cp.Participant):
         for g in self.fluid_interfaces:
             d = self.solver.interface_data(g)
             out[f"{g}/gel_traction"] = d["traction"]
-            out[f"{g}/superficial_velocity"] = d["superficial_velocity"]
+            out[f"{g}/mixture_velocity"] = d["mixture_velocity"]
             out[f"{g}/interstitial_velocity"] = d["interstitial_velocity"]
         return out
 
@@ -223,7 +271,8 @@ class CellParticipant(cp.Participant):
     Dirichlet-Neumann (default): the cell takes the gel's displacement.
     Robin-Neumann: the cell takes the gel's force on it plus springs kappa
     towards the gel's displacement, f = f_gel + kappa M (u_s - u_c); at
-    convergence u_c = u_s and the forces balance.
+    convergence u_c = u_s and the forces balance.  Quasi-static in time; its
+    state is its displacement (Newton's initial guess in the next window).
     """
 
     name = "cell"
@@ -234,6 +283,15 @@ class CellParticipant(cp.Participant):
 
     def interface_points(self, mesh_name: str) -> np.ndarray:
         return self.solver.interface_points(mesh_name)
+
+    def save_state(self):
+        return {"u": self.solver.displacement.x.array.copy()}
+
+    def load_state(self, state) -> None:
+        self.solver.displacement.x.array[:] = state["u"]
+
+    def advance(self, t: float, dt: float) -> None:
+        pass
 
     def solve(self, inputs):
         for g in self.interfaces:
@@ -257,12 +315,16 @@ class Device:
             velocity; default :func:`default_robin_coefficient`.
         whole_mesh: also build the whole-device mesh (for the monolithic
             reference and field comparisons).
+        transient: build the time-dependent gel (see the module docstring);
+            ``time_scheme`` ``"be"`` or ``"bdf2"``, ``inflow`` the waveform
+            f(t) that multiplies the inflow (None: 1).
     """
 
     def __init__(self, params: CaseParameters, comm: MPI.Comm = MPI.COMM_WORLD,
                  robin_coefficient: float | None = None, whole_mesh: bool = False,
                  newton_rtol: float = 1e-12, gamma2: str = "dirichlet",
-                 gamma2_coefficient: float | None = None):
+                 gamma2_coefficient: float | None = None, transient: bool = False,
+                 time_scheme: str = "be", inflow: typing.Callable[[float], float] | None = None):
         t0 = time.perf_counter()
         params.validate()
         self.params, self.comm = params, comm
@@ -298,7 +360,7 @@ class Device:
         self.gel = PoroelasticGelSolver(
             gel_mesh, gel_tags, self.gel_parameters, no_slip=b.gel_no_slip, symmetry=b.gel_symmetry,
             fluid_interfaces=b.fluid_interfaces, cell_interfaces=b.cell_interfaces,
-            newton_rtol=newton_rtol)
+            newton_rtol=newton_rtol, transient=transient)
         self.cell = None
         if params.with_cell:
             cell_mesh, cell_tags = self.mesh.region("cell")
@@ -309,8 +371,11 @@ class Device:
                 robin_interfaces={k: (t, self.kappa) for k, t in b.cell_interfaces.items()} if robin else None,
                 symmetry=b.cell_symmetry, newton_rtol=newton_rtol)
         self.setup_time = time.perf_counter() - t0
-        self.participants = [FluidParticipant(self.fluid, b.fluid_interfaces, self.alpha_n, self.alpha_t),
-                             GelParticipant(self.gel, b.fluid_interfaces, b.cell_interfaces, gamma2)]
+        self.transient = bool(transient)
+        self.participants = [FluidParticipant(self.fluid, b.fluid_interfaces, self.alpha_n, self.alpha_t,
+                                              inflow),
+                             GelParticipant(self.gel, b.fluid_interfaces, b.cell_interfaces, gamma2,
+                                            time_scheme)]
         if self.cell is not None:
             self.participants.append(CellParticipant(self.cell, b.cell_interfaces, gamma2))
         self.data = coupling_data(b, gamma2)

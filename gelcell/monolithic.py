@@ -3,7 +3,8 @@
 One mesh of the whole device carries all unknowns
 
     V, P    fluid velocity and pressure            (P2^2, P1)   active on the fluid
-    v_f, p  interstitial velocity, pore pressure   (P2^2, P1)   active on the gel
+    w, p    relative velocity v_f - v_s of the
+            interstitial fluid, pore pressure      (P2^2, P1)   active on the gel
     u       network displacement in the gel and
             cell displacement in the cell          (P2^2)       active on gel + cell
     lam     the fluid's traction on the gel on
@@ -20,8 +21,14 @@ its subdomain have no equation and are left out of the linear solves
     cell:    total Lagrangian neo-Hookean residual on the cell, tested with
              the same displacement test function as the gel's mixture balance,
              so that u_s = u_c and the traction balance on Gamma2 hold exactly
-    lam:     int (V.n - phi_f v_f.n) (mu.n) + (lam - (Ca/beta)(V - v_f))_tau . mu_tau dS
+    lam:     int (V.n - (phi_f v_f + phi_s v_s).n) (mu.n) + (lam - (Ca/beta)(V - v_f))_tau . mu_tau dS
              i.e. I13 and I16, tested with the multiplier's test function mu
+
+with v_f = w + v_s.  Steady: v_s = 0.  Time-dependent (``transient=True``):
+v_s is the backward Euler / BDF2 difference of u (femtools.timestepping), the
+same discretisation as the partitioned gel, so both solve one discrete
+problem per time step; the API mirrors the gel solver's (``set_time_step``,
+``push_history``, ``get_state``, ``set_state``).
 
 Gel-side quantities on the interior facets of Gamma1/Gamma3 (phi_s from
 grad u, the gel's outward normal) are selected with a gel indicator, never
@@ -41,6 +48,7 @@ import dataclasses
 import time
 
 import numpy as np
+import scipy.spatial
 
 from mpi4py import MPI
 
@@ -51,13 +59,14 @@ import cell.forms as cell_forms
 import fluid.forms as fluid_forms
 import gel.forms as gel_forms
 from femtools.functions import quadrature_measure
-from femtools.linalg import NewtonSolver
+from femtools.linalg import NewtonSolver, jacobian_at_rest
+from femtools.timestepping import RateHistory
 from gelcell.boundaries import DeviceBoundaries
 from gelcell.geometry import Tag
 
 __all__ = ["MonolithicCoefficients", "MonolithicSolver"]
 
-FIELDS = ("V", "P", "v_f", "u", "p", "lam")
+FIELDS = ("V", "P", "w", "u", "p", "lam")
 
 
 @dataclasses.dataclass
@@ -88,7 +97,8 @@ class MonolithicSolver:
 
     def __init__(self, msh, cell_tags, facet_tags, boundaries: DeviceBoundaries,
                  coefficients: MonolithicCoefficients, quadrature_degree: int = 4,
-                 newton_rtol: float = 1e-12, petsc_options: dict | None = None):
+                 newton_rtol: float = 1e-12, petsc_options: dict | None = None,
+                 transient: bool = False):
         t0 = time.perf_counter()
         self.mesh, self.cell_tags, self.facet_tags = msh, cell_tags, facet_tags
         self.boundaries, self.coefficients = boundaries, coefficients
@@ -99,11 +109,21 @@ class MonolithicSolver:
         self.W = fem.FunctionSpace(msh, ufl.MixedElement([P2, P1, P2, P2, P1, P2]))
         self.w = fem.Function(self.W, name="monolithic")
         self.has_cell = len(boundaries.cell_interfaces) > 0
+        self.transient = bool(transient)
+        self.history = None
+        if self.transient:
+            V_u, u_dofs = self.W.sub(3).collapse()
+            self._u_dofs = np.asarray(u_dofs, dtype=np.int32)
+            self._w_dofs = np.asarray(self.W.sub(2).collapse()[1], dtype=np.int32)
+            self.history = RateHistory(V_u, ufl.split(self.w)[3], coefficients.displacement_scale, "u")
         F = self._residual(quadrature_degree)
         self.bcs = self._boundary_conditions()
+        # transient: the Jacobian changes only with dt, so keep it while Newton contracts
         self.newton = NewtonSolver(F, self.w, self.bcs, name="monolithic", rtol=newton_rtol,
-                                   reuse="never", max_it=20, petsc_options=petsc_options,
-                                   active_dofs=self.active_dofs())
+                                   reuse="adaptive" if self.transient else "never", max_it=20,
+                                   petsc_options=petsc_options, active_dofs=self.active_dofs(),
+                                   J_reference=(jacobian_at_rest(F, self.w, self.history.past)
+                                                if self.transient else None))
         self.setup_time = time.perf_counter() - t0
         self.solve_time = 0.0
 
@@ -128,8 +148,10 @@ class MonolithicSolver:
     def _residual(self, degree: int):
         msh = self.mesh
         c = self._constants()
-        V, P, v_f, u, p, lam = ufl.split(self.w)
+        V, P, rel, u, p, lam = ufl.split(self.w)
         v, q, w, z, q_g, mu = ufl.TestFunctions(self.W)
+        v_s = None if self.history is None else self.history.rate
+        v_f = rel if v_s is None else rel + v_s
         dx = quadrature_measure("dx", msh, self.cell_tags, degree)
         dS = quadrature_measure("dS", msh, self.facet_tags, degree)
         n = ufl.FacetNormal(msh)
@@ -139,16 +161,16 @@ class MonolithicSolver:
             return chi("+") * expr("+") + chi("-") * expr("-")
 
         F = fluid_forms.bulk_residual(V, P, v, q, c.viscosity, dx(int(Tag.FLUID)))
-        F += gel_forms.bulk_residual(v_f, u, p, w, z, q_g, c, dx(int(Tag.GEL)))
+        F += gel_forms.bulk_residual(v_f, u, p, w, z, q_g, c, dx(int(Tag.GEL)), v_s=v_s)
         if self.has_cell:
             mu_c, lambda_c, d, s = self.cell_moduli
             F += cell_forms.residual(u, z, mu_c, lambda_c, d, s, dx(int(Tag.CELL)))
-        phi_f = 1 - gel_forms.solid_fraction(u, c)
+        flux = gel_forms.mixture_flux(v_f, u, c, v_s)
         alpha_t = c.viscosity / c.beta
         tangential = lambda a: a - ufl.dot(a, n) * n  # noqa: E731
         interface = (ufl.dot(lam, v)
-                     + gel_forms.fluid_interface_residual(v_f, u, w, z, lam, V, n, c, 1)
-                     + (ufl.dot(V, n) - phi_f * ufl.dot(v_f, n)) * ufl.dot(mu, n)
+                     + gel_forms.fluid_interface_residual(v_f, u, w, z, lam, V, n, c, 1, v_s)
+                     + (ufl.dot(V, n) - ufl.dot(flux, n)) * ufl.dot(mu, n)
                      + ufl.dot(tangential(lam - alpha_t * (V - v_f)), tangential(mu))
                      # a zero multiplier "mass": diagonal entries for the rows pinned at the interface ends
                      + fem.Constant(msh, 0.0) * ufl.dot(lam, mu))
@@ -175,6 +197,8 @@ class MonolithicSolver:
         if restrict is not None:
             keep = np.isin(dofs[0], restrict)
             dofs = [dofs[0][keep], dofs[1][keep]]
+        if i == 0:
+            self._fluid_data.append((g, g.x.array.copy()))
         return fem.dirichletbc(g, dofs, sub)
 
     def _active(self, i, regions=None, facets=None) -> np.ndarray:
@@ -198,6 +222,7 @@ class MonolithicSolver:
         b = self.boundaries
         iV, iP, ivf, iu, ip, ilam = range(6)
         bcs = []
+        self._fluid_data = []          # (Dirichlet data of V, its unscaled values): scaled by the inflow
         for tags, value in b.fluid_velocity:
             bcs.append(self._dirichlet(iV, tags, value))
         for tags, comp, value in b.fluid_component:
@@ -226,10 +251,49 @@ class MonolithicSolver:
         return iterations
 
     def field(self, name: str) -> fem.Function:
-        """One field as a function on the whole mesh (collapsed)."""
-        f = self.w.sub(FIELDS.index(name)).collapse()
+        """One field as a function on the whole mesh (collapsed): a name of FIELDS or ``"v_f"`` (= w + v_s)."""
+        if name == "v_f":
+            f = self.w.sub(FIELDS.index("w")).collapse()
+            if self.history is not None:
+                # w and u live in two P2 vector subspaces: add v_s node by node
+                if not hasattr(self, "_u_block_of_w"):
+                    x_w = f.function_space.tabulate_dof_coordinates()
+                    x_u = self.history.past[0].function_space.tabulate_dof_coordinates()
+                    dist, self._u_block_of_w = scipy.spatial.cKDTree(x_u).query(x_w)
+                    if dist.size and dist.max() > 1e-12 * (1.0 + np.abs(x_u).max()):
+                        raise RuntimeError("monolithic: the w and u subspaces do not share their nodes")
+                v_s = self.history.nodal_rate(self.w.x.array[self._u_dofs])
+                f.x.array.reshape(-1, 2)[:] += v_s.reshape(-1, 2)[self._u_block_of_w]
+        else:
+            f = self.w.sub(FIELDS.index(name)).collapse()
         f.name = name
         return f
+
+    def scale_boundary_velocity(self, factor: float) -> None:
+        """Multiply the fluid's Dirichlet velocity data (the inflow) by ``factor`` (not cumulative)."""
+        for g, base in self._fluid_data:
+            g.x.array[:] = float(factor) * base
+
+    # -- time stepping (transient=True) -------------------------------------------
+    def set_time_step(self, dt: float, scheme: str = "be", dt_previous: float | None = None) -> None:
+        """The time discretisation of v_s for the next solve (see femtools.timestepping)."""
+        if self.history.set_step(dt, scheme, dt_previous):
+            self.newton.invalidate_jacobian()
+
+    def push_history(self) -> None:
+        """Accept the current state: u^{n-1} <- u^n <- u."""
+        self.history.push(self.w.x.array[self._u_dofs])
+
+    def get_state(self) -> dict:
+        state = {"state": self.w.x.array.copy()}
+        if self.history is not None:
+            state.update(self.history.state())
+        return state
+
+    def set_state(self, state) -> None:
+        self.w.x.array[:] = state["state"]
+        if self.history is not None:
+            self.history.load(state)
 
     @property
     def num_dofs(self) -> int:

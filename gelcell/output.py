@@ -28,7 +28,7 @@ from femtools.functions import interpolate, von_mises
 from femtools.io import _jsonable
 from gelcell.results import DeviceFields, gamma_profiles
 
-__all__ = ["write_fields", "write_profiles", "write_json_file", "gather_p1"]
+__all__ = ["DerivedFields", "FieldSeries", "write_fields", "write_profiles", "write_json_file", "gather_p1"]
 
 
 def write_json_file(path: str, data, comm: MPI.Comm) -> None:
@@ -38,68 +38,122 @@ def write_json_file(path: str, data, comm: MPI.Comm) -> None:
             f.write("\n")
 
 
-def _scaled(f: fem.Function, factor: float, name: str) -> fem.Function:
-    g = fem.Function(f.function_space, name=name)
-    g.x.array[:] = factor * f.x.array
-    return g
+class DerivedFields:
+    """The fields written for ParaView and drawn in the figures, paper units, compiled once.
+
+    gel: v_f, u_s, p, the network's von Mises stress and the von Mises
+    measures of the three stress parts and their sum (interpolated at the P2
+    nodes); cell: u_c, von Mises strain and stress; fluid: V, P.  The stress
+    and displacement units enter as Constants, so no parameter value makes
+    anything compile again; ``update()`` recomputes every field from the
+    (possibly changed) functions of ``fields``.
+    """
+
+    def __init__(self, fields: DeviceFields):
+        self.fields = fields
+        p = fields.params
+        gm = fields.gel_mesh
+        c = fields.gel_coefficients()
+        u, v_f, pp = fields.displacement, fields.interstitial_velocity, fields.pore_pressure
+        s_gel = fem.Constant(gm, float(p.stress_scale))
+        Q2 = fem.FunctionSpace(gm, ("Lagrange", 2))
+        phi_s = gel_forms.solid_fraction(u, c)
+        scalars = {"von_mises_network": von_mises(gel_forms.network_stress(u, c))}
+        parts = {"pressure": -pp * ufl.Identity(2), "brinkman": (1 - phi_s) * gel_forms.fluid_stress(v_f, c),
+                 "network": phi_s * gel_forms.network_stress(u, c), "total": gel_forms.total_stress(v_f, u, pp, c)}
+        scalars.update({f"von_mises_{k}_part": von_mises(e) for k, e in parts.items()})
+        self.fluid = {"V": fem.Function(fields.fluid_velocity.function_space, name="V"),
+                      "P": fem.Function(fields.fluid_pressure.function_space, name="P")}
+        self.gel = {"v_f": fem.Function(v_f.function_space, name="v_f"),
+                    "u_s": fem.Function(u.function_space, name="u_s"),
+                    "p": fem.Function(pp.function_space, name="p")}
+        self._expressions = []
+        for name, expr in scalars.items():
+            self.gel[name] = fem.Function(Q2, name=name)
+            self._expressions.append((self.gel[name],
+                                      fem.Expression(s_gel * expr, Q2.element.interpolation_points())))
+        self.cell = None
+        if fields.cell_displacement is not None:
+            uc, cm = fields.cell_displacement, fields.cell_mesh
+            k = lambda v: fem.Constant(cm, float(v))  # noqa: E731
+            Qc = fem.FunctionSpace(cm, ("Lagrange", 2))
+            sc, dc = k(p.stress_scale), k(p.displacement_scale)
+            sigma = cell_forms.cauchy_stress(uc, k(p.mu_c), k(p.lambda_c), dc, sc)
+            self.cell = {"u_c": fem.Function(uc.function_space, name="u_c"),
+                         "von_mises_strain": fem.Function(Qc, name="von_mises_strain"),
+                         "von_mises_stress": fem.Function(Qc, name="von_mises_stress")}
+            for name, expr in (("von_mises_strain", von_mises(cell_forms.green_lagrange(uc, dc))),
+                               ("von_mises_stress", sc * von_mises(sigma))):
+                self._expressions.append((self.cell[name], fem.Expression(expr, Qc.element.interpolation_points())))
+        self.update()
+
+    def update(self) -> None:
+        f, p = self.fields, self.fields.params
+        s, d = p.stress_scale, p.displacement_scale
+        for dst, src, factor in ((self.fluid["V"], f.fluid_velocity, 1.0), (self.fluid["P"], f.fluid_pressure, s),
+                                 (self.gel["v_f"], f.interstitial_velocity, 1.0), (self.gel["u_s"], f.displacement, d),
+                                 (self.gel["p"], f.pore_pressure, s)):
+            dst.x.array[:] = factor * src.x.array
+        if self.cell is not None:
+            self.cell["u_c"].x.array[:] = d * f.cell_displacement.x.array
+        for dst, expression in self._expressions:
+            dst.interpolate(expression)
+            dst.x.scatter_forward()
+
+    def groups(self) -> list[tuple[str, object, list]]:
+        """``(file name, mesh, functions)`` of each XDMF file."""
+        out = [("fluid.xdmf", self.fields.fluid_velocity.function_space.mesh, list(self.fluid.values())),
+               ("gel.xdmf", self.fields.gel_mesh, list(self.gel.values()))]
+        if self.cell is not None:
+            out.append(("cell.xdmf", self.fields.cell_mesh, list(self.cell.values())))
+        return out
 
 
 def derived_gel_fields(fields: DeviceFields) -> dict[str, fem.Function]:
     """Gel fields in paper units, on continuous P2 (von Mises interpolated at the nodes)."""
-    p = fields.params
-    s, d = p.stress_scale, p.displacement_scale
-    c = fields.gel_coefficients()
-    u, v_f, pp = fields.displacement, fields.interstitial_velocity, fields.pore_pressure
-    Q2 = fem.FunctionSpace(fields.gel_mesh, ("Lagrange", 2))
-    out = {"v_f": _scaled(v_f, 1.0, "v_f"), "u_s": _scaled(u, d, "u_s"), "p": _scaled(pp, s, "p")}
-    out["von_mises_network"] = interpolate(s * von_mises(gel_forms.network_stress(u, c)), Q2,
-                                           name="von_mises_network")
-    phi_s = gel_forms.solid_fraction(u, c)
-    parts = {"pressure": -pp * ufl.Identity(2), "brinkman": (1 - phi_s) * gel_forms.fluid_stress(v_f, c),
-             "network": phi_s * gel_forms.network_stress(u, c), "total": gel_forms.total_stress(v_f, u, pp, c)}
-    for key, expr in parts.items():
-        out[f"von_mises_{key}_part"] = interpolate(s * von_mises(expr), Q2, name=f"von_mises_{key}_part")
-    return out
+    return DerivedFields(fields).gel
 
 
 def derived_cell_fields(fields: DeviceFields) -> dict[str, fem.Function]:
     """Cell fields in paper units: displacement, von Mises strain and stress (P2 nodal)."""
-    p = fields.params
-    s, d = p.stress_scale, p.displacement_scale
-    uc = fields.cell_displacement
-    cm = fields.cell_mesh
-    k = lambda v: fem.Constant(cm, float(v))  # noqa: E731
-    Q2 = fem.FunctionSpace(cm, ("Lagrange", 2))
-    sigma = cell_forms.cauchy_stress(uc, k(p.mu_c), k(p.lambda_c), k(d), k(s))
-    return {"u_c": _scaled(uc, d, "u_c"),
-            "von_mises_strain": interpolate(von_mises(cell_forms.green_lagrange(uc, k(d))), Q2,
-                                            name="von_mises_strain"),
-            "von_mises_stress": interpolate(s * von_mises(sigma), Q2, name="von_mises_stress")}
+    return DerivedFields(fields).cell
 
 
-def _write_xdmf(path: str, msh, functions, comm) -> None:
-    with io.XDMFFile(comm, path, "w") as xf:
-        xf.write_mesh(msh)
-        for f in functions:
-            xf.write_function(f, 0.0)
+class FieldSeries:
+    """XDMF files (fluid, gel, cell) holding the derived fields at several times, for ParaView."""
+
+    def __init__(self, directory: str, derived: DerivedFields):
+        self.derived = derived
+        comm = derived.fields.comm
+        self.files = []
+        for name, msh, functions in derived.groups():
+            xf = io.XDMFFile(comm, os.path.join(directory, name), "w")
+            xf.write_mesh(msh)
+            self.files.append((name, xf, functions))
+
+    @property
+    def names(self) -> list[str]:
+        return [name for name, _, _ in self.files]
+
+    def write(self, t: float) -> None:
+        """Write the derived fields as they are now, at time t."""
+        for _, xf, functions in self.files:
+            for f in functions:
+                xf.write_function(f, t)
+
+    def close(self) -> None:
+        for _, xf, _ in self.files:
+            xf.close()
 
 
 def write_fields(directory: str, fields: DeviceFields) -> list[str]:
     """fluid.xdmf (V, P), gel.xdmf (v_f, p, u_s, von Mises ...), cell.xdmf (u_c, strain, stress)."""
-    comm = fields.comm
-    p = fields.params
-    written = []
-    fluid = [_scaled(fields.fluid_velocity, 1.0, "V"), _scaled(fields.fluid_pressure, p.stress_scale, "P")]
-    _write_xdmf(os.path.join(directory, "fluid.xdmf"), fields.fluid_velocity.function_space.mesh, fluid, comm)
-    written.append("fluid.xdmf")
-    _write_xdmf(os.path.join(directory, "gel.xdmf"), fields.gel_mesh, list(derived_gel_fields(fields).values()),
-                comm)
-    written.append("gel.xdmf")
-    if fields.cell_displacement is not None:
-        _write_xdmf(os.path.join(directory, "cell.xdmf"), fields.cell_mesh,
-                    list(derived_cell_fields(fields).values()), comm)
-        written.append("cell.xdmf")
-    return written
+    series = FieldSeries(directory, DerivedFields(fields))
+    try:
+        series.write(0.0)
+    finally:
+        series.close()
+    return series.names
 
 
 def write_profiles(directory: str, fields: DeviceFields, comm: MPI.Comm) -> dict[str, dict]:

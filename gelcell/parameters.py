@@ -442,6 +442,8 @@ class CaseParameters:
         geometry: :class:`ShearGeometry` or :class:`NormalGeometry` matching
             ``case`` (default geometry of the case if omitted).
         coupling: raw ``[coupling]`` options, validated by the coupling library.
+        time: raw ``[time]`` options of a time-dependent run, validated by
+            :class:`gelcell.timesettings.TimeSettings`.
     """
 
     case: str = "shear"
@@ -452,6 +454,7 @@ class CaseParameters:
     geometry: typing.Any = None
     mesh: MeshSizes = dataclasses.field(default_factory=MeshSizes)
     coupling: dict = dataclasses.field(default_factory=dict)
+    time: dict = dataclasses.field(default_factory=dict)
 
     def __post_init__(self):
         if self.case not in CASES:
@@ -459,6 +462,7 @@ class CaseParameters:
         if self.geometry is None:
             object.__setattr__(self, "geometry", _GEOMETRY[self.case]())
         object.__setattr__(self, "coupling", copy.deepcopy(dict(self.coupling or {})))
+        object.__setattr__(self, "time", copy.deepcopy(dict(self.time or {})))
         self.validate()
 
     # ----------------------------------------------------------- validation
@@ -494,7 +498,7 @@ class CaseParameters:
         ``lambda_c`` [Pa], or ``youngs_modulus`` [Pa] and ``poisson_ratio``,
         or ``moduli_multiple`` (× φ_s0 μ_s, with an optional
         ``poisson_ratio``, default 0.25); ``[geometry]`` (keys of the case's
-        geometry class); ``[mesh]``; ``[coupling]`` (kept raw).
+        geometry class); ``[mesh]``; ``[coupling]`` and ``[time]`` (kept raw).
 
         ``overrides`` maps dotted keys (``"physics.ca"``, ``"geometry.e"``,
         ``"mesh.size_factor"``, ``"case.name"``, ``"case.cell"``) to values that
@@ -514,7 +518,7 @@ class CaseParameters:
             d[table][name] = value
             if key == "physics.ca":
                 d.get("dimensional", {}).pop("V0", None)
-        known = {"case", "physics", "dimensional", "cell", "geometry", "mesh", "coupling"}
+        known = {"case", "physics", "dimensional", "cell", "geometry", "mesh", "coupling", "time"}
         for table, value in d.items():
             if table not in known:
                 raise ParameterError(f"unknown table or key '{table}' in {source} "
@@ -557,7 +561,7 @@ class CaseParameters:
         cell = cls._cell_from_block(cell_block, phys_obj, dim_obj, source)
         return cls(case=case, with_cell=with_cell, physics=phys_obj, dimensional=dim_obj,
                    cell=cell, geometry=_GEOMETRY[case](**geometry), mesh=MeshSizes(**mesh),
-                   coupling=dict(d.get("coupling", {})))
+                   coupling=dict(d.get("coupling", {})), time=dict(d.get("time", {})))
 
     @staticmethod
     def _cell_from_block(block: dict, physics: Physics, dim: Dimensional,
@@ -740,7 +744,8 @@ class CaseParameters:
                 "cell": dataclasses.asdict(self.cell),
                 "geometry": dataclasses.asdict(self.geometry),
                 "mesh": dataclasses.asdict(self.mesh),
-                "coupling": copy.deepcopy(self.coupling)}
+                "coupling": copy.deepcopy(self.coupling),
+                "time": copy.deepcopy(self.time)}
 
     def to_dict(self) -> dict:
         """Everything for a summary: inputs plus dimensionless and SI blocks."""

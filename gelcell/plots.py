@@ -18,7 +18,7 @@ import matplotlib.tri as mtri  # noqa: E402
 
 import ufl  # noqa: E402
 
-from gelcell.output import derived_cell_fields, derived_gel_fields, gather_p1  # noqa: E402
+from gelcell.output import DerivedFields, gather_p1  # noqa: E402
 from gelcell.results import DeviceFields  # noqa: E402
 
 __all__ = ["draw_figures", "plot_profiles"]
@@ -82,12 +82,13 @@ def plot_profiles(path: str, profiles: dict, params, overlay: dict | None = None
 
 
 def draw_figures(directory: str, fields: DeviceFields, profiles: dict, summary: dict,
-                 overlay: dict | None = None) -> list[str]:
+                 overlay: dict | None = None, derived: DerivedFields | None = None) -> list[str]:
     """Draw every figure of a run into ``directory``; returns the file names (rank 0)."""
     p = fields.params
     comm = fields.comm
     V, L, S = p.to_report(1.0, "velocity"), p.to_report(1.0, "length"), p.to_report(1.0, "stress")
-    gel = derived_gel_fields(fields)
+    derived = derived or DerivedFields(fields)
+    gel = derived.gel
     speed = gather_p1(gel["v_f"])
     pressure = gather_p1(gel["p"])
     disp = gather_p1(gel["u_s"])
@@ -95,8 +96,7 @@ def draw_figures(directory: str, fields: DeviceFields, profiles: dict, summary: 
     parts = {k: gather_p1(gel[f"von_mises_{k}_part"]) for k in ("pressure", "brinkman", "network", "total")}
     cell = None
     if fields.cell_displacement is not None:
-        cf = derived_cell_fields(fields)
-        cell = gather_p1(cf["u_c"])
+        cell = gather_p1(derived.cell["u_c"])
     written: list[str] = []
     if comm.rank != 0:
         return written
@@ -151,4 +151,54 @@ def draw_figures(directory: str, fields: DeviceFields, profiles: dict, summary: 
         fig.suptitle("stress parts in the gel around the cell (von Mises)")
         fig.subplots_adjust(wspace=0.5, hspace=0.35)
         _save(fig, directory, "cell_traction_parts.png", written)
+    return written
+
+
+def draw_transient_figures(directory: str, rows: list[dict], summary: dict, params, comm) -> list[str]:
+    """trajectory.png (centroid x and y against t, y on its own axis, steady values marked) and
+    iterations.png (coupling iterations per window); rank 0 draws, returns the file names."""
+    if comm.rank != 0:
+        return []
+    written: list[str] = []
+    t = np.array([r["t"] for r in rows])
+    seconds = params.to_si(t, "time")
+    L = params.to_report(1.0, "length")
+    tr = summary["transient"]
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    if params.with_cell:
+        x = L * np.array([r["centroid_x"] for r in rows])
+        y = L * np.array([r["centroid_y"] for r in rows])
+        ax.plot(seconds, x, "C0-", label="centroid x")
+        ax.axhline(x[-1], color="C0", ls=":", lw=0.8, label=f"final x {x[-1]:.4g} µm")
+        ax.set_ylabel("centroid displacement x [µm]", color="C0")
+        if params.case == "shear":
+            # the much smaller y motion on its own axis (zero by symmetry in the normal-flow device)
+            ay = ax.twinx()
+            ay.plot(seconds, y, "C3-", label="centroid y")
+            ay.axhline(y[-1], color="C3", ls=":", lw=0.8)
+            ay.set_ylabel("centroid displacement y [µm]", color="C3")
+        for q, style in (("t50", "--"), ("t90", "-."), ("t99", ":")):
+            if tr.get(q) is not None:
+                ax.axvline(params.to_si(tr[q], "time"), color="grey", ls=style, lw=0.8, label=q)
+        ax.set_title(f"{params.case} flow: the cell's centroid from rest")
+    else:
+        u = L * np.array([r["max_network_displacement"] for r in rows])
+        ax.plot(seconds, u, "C0-", label="max |u_s|")
+        ax.axhline(u[-1], color="C0", ls=":", lw=0.8)
+        ax.set_ylabel("max |u_s| [µm]")
+        ax.set_title(f"{params.case} flow without a cell: the network from rest")
+    ax.set_xlabel("t [s]")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower right", fontsize=8)
+    _save(fig, directory, "trajectory.png", written)
+
+    fig, ax = plt.subplots(figsize=(8, 3.5))
+    its = [r["iterations"] for r in rows[1:]]
+    ax.bar(np.arange(1, len(its) + 1), its, width=1.0, color="C0")
+    ax.set_xlabel("time window")
+    ax.set_ylabel("iterations")
+    mean = tr.get("iterations_mean")
+    ax.set_title(f"iterations per window (mean {mean:.2f})" if mean is not None else "iterations per window")
+    ax.grid(alpha=0.3, axis="y")
+    _save(fig, directory, "iterations.png", written)
     return written

@@ -33,6 +33,7 @@ Conventions of the reported quantities (model.md section 7):
 from __future__ import annotations
 
 import dataclasses
+import math
 import typing
 
 import numpy as np
@@ -50,7 +51,7 @@ from femtools.transfer import NodalTransfer
 from gelcell.geometry import Tag
 from gelcell.parameters import CaseParameters
 
-__all__ = ["DeviceFields", "fields_from_device", "fields_from_monolithic", "summarize",
+__all__ = ["DeviceFields", "DeviceQuantities", "fields_from_device", "fields_from_monolithic", "summarize",
            "gamma_profiles", "relative_differences", "flat_quantities"]
 
 
@@ -149,6 +150,17 @@ class _PointValues:
         f = interpolate(expr, self.space)
         return f.x.array[: self.points.shape[0]].copy()
 
+    def compile(self, expr):
+        """A callable returning the values of ``expr`` (compiled once) for the current coefficients."""
+        expression = fem.Expression(expr, self.space.element.interpolation_points())
+        f = fem.Function(self.space)
+        n = self.points.shape[0]
+
+        def values() -> np.ndarray:
+            f.interpolate(expression)
+            return f.x.array[:n].copy()
+        return values
+
     def extrema(self, values: np.ndarray, mask: np.ndarray | None = None):
         """Global (min, max) and the location of the max."""
         v = values if mask is None else values[mask]
@@ -166,84 +178,158 @@ def _cell_geometry(params: CaseParameters):
     return np.asarray(g.cell_centre, dtype=float), 0.5 * float(g.cell_diameter)
 
 
+def _assemble(form, comm) -> float:
+    return comm.allreduce(fem.assemble_scalar(form), op=MPI.SUM)
+
+
 # -- the summary ------------------------------------------------------------------
-def summarize(fields: DeviceFields) -> dict:
-    """Every quantity of model.md section 7, dimensionless (paper units) and SI."""
-    p = fields.params
-    s, d = p.stress_scale, p.displacement_scale
-    comm = fields.comm
-    gm = fields.gel_mesh
-    c = fields.gel_coefficients()
-    v_f, u, pp = fields.interstitial_velocity, fields.displacement, fields.pore_pressure
-    gel_points = _PointValues(gm)
-    phi_s = gel_forms.solid_fraction(u, c)
-    sigma_s = gel_forms.network_stress(u, c)
-    sigma_f = gel_forms.fluid_stress(v_f, c)
-    vm_network = gel_points(von_mises(sigma_s))
-    _, vm_net_max, vm_net_where = gel_points.extrema(vm_network)
-    dx_gel = ufl.Measure("dx", domain=gm)
-    _, theta_gel, _ = gel_forms.kinematics(u, c.d)
-    dA_gel = d * integrate(theta_gel, dx_gel, comm)
-    dA_abs = d * integrate(abs(theta_gel), dx_gel, comm)
-    area_gel = integrate(fem.Constant(gm, 1.0), dx_gel, comm)
-    grad_norm = gel_points(ufl.sqrt(ufl.inner(ufl.grad(u), ufl.grad(u))))
-    out = {
-        "model": {
-            "approximation": "steady state; gel on the reference configuration (no mesh motion)",
-            "max_displacement_gradient": d * gel_points.extrema(grad_norm)[1],
-        },
-        "gel": {
-            "max_interstitial_speed": _max_norm(v_f),
-            "max_network_displacement": d * _max_norm(u),
-            "max_network_von_mises": s * vm_net_max,
-            "max_network_von_mises_location": vm_net_where,
-        },
-        "cell": None,
-    }
-    dA_cell, area_cell = 0.0, 0.0
-    if fields.cell_displacement is not None:
-        uc = fields.cell_displacement
-        cm = fields.cell_mesh
-        mu_c, lam_c = fem.Constant(cm, float(p.mu_c)), fem.Constant(cm, float(p.lambda_c))
-        dc, sc = fem.Constant(cm, float(d)), fem.Constant(cm, float(s))
-        dx_cell = ufl.Measure("dx", domain=cm)
-        area_cell = integrate(fem.Constant(cm, 1.0), dx_cell, comm)
-        centroid = [d * integrate(uc[i], dx_cell, comm) / area_cell for i in range(2)]
+class DeviceQuantities:
+    """The quantities of model.md section 7 of one :class:`DeviceFields`, compiled once.
+
+    Every form and expression is built on the (persistent) functions of
+    ``fields`` with the coefficients as Constants, so evaluating again after
+    the functions changed (the windows of a time-dependent run) compiles
+    nothing.  ``summary()`` gives every quantity; ``timeseries_row()`` the
+    cheap subset recorded per time window.
+    """
+
+    #: the columns of ``timeseries_row`` (after t, inflow)
+    TIMESERIES = ("centroid_x", "centroid_y", "max_cell_displacement", "cell_strain_min", "cell_strain_max",
+                  "cell_stress_min", "cell_stress_max", "max_interstitial_speed", "max_network_displacement",
+                  "volume_change_below_gamma1")
+
+    def __init__(self, fields: DeviceFields):
+        self.fields = fields
+        p = fields.params
+        self.comm = comm = fields.comm
+        gm = fields.gel_mesh
+        c = self.coefficients = fields.gel_coefficients()
+        v_f, u, pp = fields.interstitial_velocity, fields.displacement, fields.pore_pressure
+        self.gel_points = _PointValues(gm)
+        dx_gel = ufl.Measure("dx", domain=gm)
+        _, theta_gel, _ = gel_forms.kinematics(u, c.d)
+        self._forms = {"dA_gel": fem.form(theta_gel * dx_gel), "dA_abs_gel": fem.form(abs(theta_gel) * dx_gel),
+                       "area_gel": fem.form(fem.Constant(gm, 1.0) * dx_gel)}
+        self._area = {"gel": _assemble(self._forms["area_gel"], comm), "cell": 0.0}
+        self._phi_s = gel_forms.solid_fraction(u, c)
+        self._sigma_s = gel_forms.network_stress(u, c)
+        self._sigma_f = gel_forms.fluid_stress(v_f, c)
+        self._expressions = {}
+        self.cell_points = None
+        if fields.cell_displacement is not None:
+            uc, cm = fields.cell_displacement, fields.cell_mesh
+            k = lambda v: fem.Constant(cm, float(v))  # noqa: E731
+            dc, sc = k(p.displacement_scale), k(p.stress_scale)
+            dx_cell = ufl.Measure("dx", domain=cm)
+            _, theta_cell, _ = cell_forms.kinematics(uc, dc)
+            self._forms.update(centroid_x=fem.form(uc[0] * dx_cell), centroid_y=fem.form(uc[1] * dx_cell),
+                               dA_cell=fem.form(theta_cell * dx_cell),
+                               dA_abs_cell=fem.form(abs(theta_cell) * dx_cell))
+            self._area["cell"] = _assemble(fem.form(fem.Constant(cm, 1.0) * dx_cell), comm)
+            self.cell_points = _PointValues(cm)
+            sigma_c = cell_forms.cauchy_stress(uc, k(p.mu_c), k(p.lambda_c), dc, sc)
+            self._expressions["strain"] = self.cell_points.compile(von_mises(cell_forms.green_lagrange(uc, dc)))
+            self._expressions["stress"] = self.cell_points.compile(von_mises(sigma_c))
+
+    def _integral(self, name: str) -> float:
+        return _assemble(self._forms[name], self.comm)
+
+    def _expression(self, name: str, expr):
+        """The compiled gel point-value expression ``name`` (built on first use)."""
+        if name not in self._expressions:
+            self._expressions[name] = self.gel_points.compile(expr)
+        return self._expressions[name]()
+
+    def cell_state(self) -> dict | None:
+        """Centroid, max displacement and the von Mises ranges of the cell (paper units)."""
+        f = self.fields
+        if f.cell_displacement is None:
+            return None
+        p = f.params
+        d, s = p.displacement_scale, p.stress_scale
+        centroid = [d * self._integral(f"centroid_{x}") / self._area["cell"] for x in "xy"]
         if p.case == "normal":
             # the mesh holds the lower half of a cell cut by the symmetry line y = H: the whole
             # cell's centroid moves along the line (its mirror half moves the opposite way in y)
             centroid[1] = 0.0
-        cell_points = _PointValues(cm)
-        vm_strain = cell_points(von_mises(cell_forms.green_lagrange(uc, dc)))
-        vm_stress = cell_points(von_mises(cell_forms.cauchy_stress(uc, mu_c, lam_c, dc, sc)))
-        e_min, e_max, _ = cell_points.extrema(vm_strain)
-        s_min, s_max, _ = cell_points.extrema(vm_stress)
-        _, theta_cell, _ = cell_forms.kinematics(uc, dc)
-        dA_cell = d * integrate(theta_cell, dx_cell, comm)
-        dA_abs += d * integrate(abs(theta_cell), dx_cell, comm)
-        # traction parts: von Mises of each stress part in the gel within one diameter of the cell
-        centre, radius = _cell_geometry(p)
-        near = np.linalg.norm(gel_points.points - centre, axis=1) <= radius + 2 * radius * (1 + 1e-9)
-        I = ufl.Identity(2)
-        parts = {"pressure": -pp * I, "brinkman": (1 - phi_s) * sigma_f, "network": phi_s * sigma_s,
-                 "total": gel_forms.total_stress(v_f, u, pp, c)}
-        traction = {k: s * gel_points.extrema(gel_points(von_mises(e)), near)[1] for k, e in parts.items()}
-        out["cell"] = {
-            "centroid_displacement": centroid,
-            "max_displacement": d * _max_norm(uc),
-            "von_mises_strain": [e_min, e_max],
-            "von_mises_stress": [s * s_min, s * s_max],
-            "max_traction_von_mises": traction,
+        e_min, e_max, _ = self.cell_points.extrema(self._expressions["strain"]())
+        s_min, s_max, _ = self.cell_points.extrema(self._expressions["stress"]())
+        return {"centroid_displacement": centroid, "max_displacement": d * _max_norm(f.cell_displacement),
+                "von_mises_strain": [e_min, e_max], "von_mises_stress": [s * s_min, s * s_max]}
+
+    def volume_change(self) -> dict:
+        d = self.fields.params.displacement_scale
+        dA_gel = d * self._integral("dA_gel")
+        dA_abs = d * self._integral("dA_abs_gel")
+        dA_cell = 0.0
+        if self.fields.cell_displacement is not None:
+            dA_cell = d * self._integral("dA_cell")
+            dA_abs += d * self._integral("dA_abs_cell")
+        total = dA_gel + dA_cell
+        return {"volume_change_below_gamma1": total,
+                # int |J - 1|: the scale of the local dilatations whose sum the volume change is
+                # (compression and dilatation largely cancel, so the sum is much smaller)
+                "local_volume_change_magnitude": dA_abs,
+                "relative_volume_change_below_gamma1": total / (self._area["gel"] + self._area["cell"]),
+                "volume_change_share_of_cell": dA_cell / total if total != 0 else 0.0}
+
+    def timeseries_row(self) -> dict[str, float]:
+        """The per-window quantities (``TIMESERIES``), paper units; NaN for cell ones without a cell."""
+        f = self.fields
+        d = f.params.displacement_scale
+        row = dict.fromkeys(self.TIMESERIES, math.nan)
+        cell = self.cell_state()
+        if cell is not None:
+            row.update(centroid_x=cell["centroid_displacement"][0], centroid_y=cell["centroid_displacement"][1],
+                       max_cell_displacement=cell["max_displacement"],
+                       cell_strain_min=cell["von_mises_strain"][0], cell_strain_max=cell["von_mises_strain"][1],
+                       cell_stress_min=cell["von_mises_stress"][0], cell_stress_max=cell["von_mises_stress"][1])
+        row.update(max_interstitial_speed=_max_norm(f.interstitial_velocity),
+                   max_network_displacement=d * _max_norm(f.displacement),
+                   volume_change_below_gamma1=self.volume_change()["volume_change_below_gamma1"])
+        return row
+
+    def summary(self) -> dict:
+        """Every quantity of model.md section 7, dimensionless (paper units) and SI."""
+        f = self.fields
+        p = f.params
+        s, d = p.stress_scale, p.displacement_scale
+        c, u, v_f, pp = self.coefficients, f.displacement, f.interstitial_velocity, f.pore_pressure
+        gel_points = self.gel_points
+        vm_network = self._expression("network", von_mises(self._sigma_s))
+        _, vm_net_max, vm_net_where = gel_points.extrema(vm_network)
+        grad_norm = self._expression("grad", ufl.sqrt(ufl.inner(ufl.grad(u), ufl.grad(u))))
+        out = {
+            "model": {
+                "approximation": "gel on the reference configuration (no mesh motion)",
+                "max_displacement_gradient": d * gel_points.extrema(grad_norm)[1],
+            },
+            "gel": {
+                "max_interstitial_speed": _max_norm(v_f),
+                "max_network_displacement": d * _max_norm(u),
+                "max_network_von_mises": s * vm_net_max,
+                "max_network_von_mises_location": vm_net_where,
+            },
+            "cell": self.cell_state(),
         }
-    total = dA_gel + dA_cell
-    out["gel"]["volume_change_below_gamma1"] = total
-    # int |J - 1|: the scale of the local dilatations whose sum the volume change is
-    # (compression and dilatation largely cancel, so the sum is much smaller)
-    out["gel"]["local_volume_change_magnitude"] = dA_abs
-    out["gel"]["relative_volume_change_below_gamma1"] = total / (area_gel + area_cell)
-    out["gel"]["volume_change_share_of_cell"] = dA_cell / total if total != 0 else 0.0
-    out["si"] = _to_si(out, p)
-    return out
+        if out["cell"] is not None:
+            # traction parts: von Mises of each stress part in the gel within one diameter of the cell
+            centre, radius = _cell_geometry(p)
+            near = np.linalg.norm(gel_points.points - centre, axis=1) <= radius + 2 * radius * (1 + 1e-9)
+            I = ufl.Identity(2)
+            parts = {"pressure": -pp * I, "brinkman": (1 - self._phi_s) * self._sigma_f,
+                     "network": self._phi_s * self._sigma_s, "total": gel_forms.total_stress(v_f, u, pp, c)}
+            out["cell"]["max_traction_von_mises"] = {
+                k: s * gel_points.extrema(self._expression(f"part_{k}", von_mises(e)), near)[1]
+                for k, e in parts.items()}
+        out["gel"].update(self.volume_change())
+        out["si"] = _to_si(out, p)
+        return out
+
+
+def summarize(fields: DeviceFields) -> dict:
+    """Every quantity of model.md section 7, dimensionless (paper units) and SI."""
+    return DeviceQuantities(fields).summary()
 
 
 def _to_si(out: dict, p: CaseParameters) -> dict:

@@ -195,7 +195,7 @@ def format_summary(summary: dict) -> str:
         si = _get(summary["si"][key], rest)
         lines.append(f"{label:32s} {v:14.6e} {si:14.6e}  {_UNITS[kind]}")
     c = summary.get("coupling")
-    if c:
+    if c and "iterations" in c:
         lines.append(f"coupling: {c['scheme']} / {c['acceleration']}, {c['iterations']} iterations, "
                      f"converged={c['converged']}")
     t = summary.get("timing", {})

@@ -13,6 +13,7 @@
 
 import gc
 import os
+import pathlib
 import sys
 
 import pytest
@@ -39,3 +40,10 @@ def pytest_runtest_teardown(item):
 @pytest.fixture
 def comm():
     return MPI.COMM_WORLD
+
+
+@pytest.fixture
+def shared_tmp_path(tmp_path, comm):
+    """A temporary directory that is the same on every MPI rank (rank 0's ``tmp_path``)."""
+    path = comm.bcast(str(tmp_path) if comm.Get_rank() == 0 else None, root=0)
+    return pathlib.Path(path)

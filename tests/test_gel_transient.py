@@ -215,7 +215,7 @@ class MandelQuarter:
         saved = gel.get_state()
         # unit plate displacement with no history
         empty = {k: np.zeros_like(v) for k, v in saved.items()}
-        empty["history_length"] = saved["history_length"]
+        empty["length"] = saved["length"]
         gel.set_state(empty)
         self._set_plate(1.0)
         gel.solve()

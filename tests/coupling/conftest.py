@@ -24,9 +24,3 @@ def comm():
     """``MPI.COMM_WORLD`` (or the serial stand-in without mpi4py)."""
     return default_comm()
 
-
-@pytest.fixture
-def shared_tmp_path(tmp_path, comm):
-    """A temporary directory that is the same on every MPI rank (rank 0's ``tmp_path``)."""
-    path = comm.bcast(str(tmp_path) if comm.Get_rank() == 0 else None, root=0)
-    return pathlib.Path(path)

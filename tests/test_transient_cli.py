@@ -1,0 +1,251 @@
+"""``gelcell run --transient``: outputs, interruption and --resume, bad input.
+
+The resumed run must end with the same result as the uninterrupted one to
+1e-12 (quasi-Newton state, adaptive-step control and time history included),
+and every bad time input must stop with a message naming the parameter
+before anything is meshed or written.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+
+import h5py
+import numpy as np
+import pytest
+
+from mpi4py import MPI
+
+from gelcell import cli
+from gelcell.timesettings import time_scales
+from gelcell.transient import COLUMNS, PartitionedBackend, run_transient_case
+from transient_cases import case, tau
+
+COMM = MPI.COMM_WORLD
+
+
+def read_series(directory):
+    with h5py.File(os.path.join(directory, "timeseries.h5"), "r") as h5:
+        return {c: h5[c][()] for c in COLUMNS}
+
+
+def assert_same_series(a, b, rtol):
+    assert a["t"].shape == b["t"].shape
+    for c in COLUMNS:
+        scale = np.nanmax(np.abs(b[c])) if np.any(np.isfinite(b[c])) else 0.0
+        np.testing.assert_allclose(a[c], b[c], rtol=0, atol=rtol * max(scale, 1e-300), err_msg=c)
+
+
+@pytest.fixture(scope="module")
+def settings():
+    from gelcell.timesettings import TimeSettings
+    p = case("shear")
+    return TimeSettings(transient=True, dt=tau(p) / 10, t_end=tau(p) / 2, scheme="bdf2", adaptive=True,
+                        time_tol=1e-2, output_every=2)
+
+
+def test_outputs_of_a_transient_run(shared_tmp_path, settings):
+    """Every file of the issue is written; the checkpoint and frames are gone; t = 0 is a row."""
+    out = str(shared_tmp_path / "run")
+    summary = run_transient_case(case("shear"), settings, out, comm=COMM, figures=True)
+    if COMM.rank == 0:
+        names = set(os.listdir(out))
+        for f in ("summary.json", "timeseries.csv", "timeseries.h5", "trajectory.png", "iterations.png",
+                  "fluid.xdmf", "gel.xdmf", "cell.xdmf", "coupling"):
+            assert f in names, f
+        assert "checkpoint.npz" not in names and "frames" not in names
+        assert not os.path.exists(out + ".partial")
+        with open(os.path.join(out, "timeseries.csv")) as fh:
+            header = fh.readline().strip().split(",")
+        assert tuple(header) == COLUMNS
+        with open(os.path.join(out, "summary.json")) as fh:
+            stored = json.load(fh)
+        for key in ("t50", "t90", "t99", "relaxation_time", "windows", "iterations_total", "iterations_mean",
+                    "wall_time"):
+            assert key in stored["transient"], key
+        assert stored["transient"]["rejected_windows"] >= 0
+        series = read_series(out)
+        assert series["t"][0] == 0.0 and series["centroid_x"][0] == 0.0
+        assert series["t"][-1] == pytest.approx(settings.t_end, rel=1e-12)
+        assert np.all(series["residual"][1:] <= 1e-10)
+        # the XDMF time series holds several frames (output_every = 2 plus the last)
+        with open(os.path.join(out, "gel.xdmf")) as fh:
+            assert fh.read().count('<Time Value=') >= 3 * 7
+    assert summary["transient"]["windows"] == len(read_series(out)["t"]) - 1 if COMM.rank == 0 else True
+
+
+class Interrupt(Exception):
+    pass
+
+
+def test_interrupted_run_resumes_to_the_same_result(shared_tmp_path, settings, monkeypatch):
+    """A run stopped in its 4th window (attempt) and resumed equals the uninterrupted run to 1e-12.
+
+    Adaptive BDF2: the checkpoint carries the coupling's quasi-Newton columns,
+    the extrapolation history, the gel's displacement history and the step
+    controller's state.
+    """
+    reference = str(shared_tmp_path / "reference")
+    run_transient_case(case("shear"), settings, reference, comm=COMM, figures=False, fields=False)
+    out = str(shared_tmp_path / "interrupted")
+    calls = {"n": 0}
+    window = PartitionedBackend.window
+
+    def failing(self, t, dt):
+        calls["n"] += 1
+        if calls["n"] == 4:
+            raise Interrupt("simulated crash")
+        return window(self, t, dt)
+
+    monkeypatch.setattr(PartitionedBackend, "window", failing)
+    with pytest.raises(Interrupt):
+        run_transient_case(case("shear"), settings, out, comm=COMM, figures=False, fields=False)
+    monkeypatch.setattr(PartitionedBackend, "window", window)
+    if COMM.rank == 0:
+        assert os.path.isfile(os.path.join(out + ".partial", "checkpoint.npz"))
+        assert not os.path.exists(out)
+    COMM.Barrier()
+    run_transient_case(case("shear"), settings, out, comm=COMM, figures=False, fields=False, resume=True)
+    if COMM.rank == 0:
+        assert not os.path.exists(out + ".partial")
+        assert_same_series(read_series(out), read_series(reference), 1e-12)
+
+
+# --------------------------------------------------------------------------- the command line
+def gelcell(*args, **kw):
+    env = dict(os.environ, MPLBACKEND="Agg", PYTHONUNBUFFERED="1")
+    return subprocess.Popen([sys.executable, "-m", "gelcell.cli", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, env=env, **kw)
+
+
+@pytest.mark.skip_in_parallel
+def test_sigint_keeps_the_checkpoint_and_resume_finishes(tmp_path):
+    """SIGINT in the middle: DIR.partial/ keeps the checkpoint, DIR is untouched; --resume DIR finishes
+    the run, removes DIR.partial/ and gives the time series of an uninterrupted run (to 1e-12)."""
+    p = case("shear")
+    common = ["run", "shear", "--transient", "--mesh-size", "3", "--dt", repr(tau(p) / 10), "--t-end",
+              repr(tau(p) / 2), "--time-scheme", "bdf2", "--no-figures"]
+    ref = gelcell(*common, "--out", str(tmp_path / "ref"))
+    assert ref.wait(timeout=600) == 0, ref.stdout.read()
+    out = tmp_path / "res"
+    proc = gelcell(*common, "--out", str(out))
+    for line in proc.stdout:
+        if line.startswith("window    3"):
+            proc.send_signal(signal.SIGINT)
+            break
+    proc.communicate(timeout=600)
+    assert proc.returncode != 0
+    assert (tmp_path / "res.partial" / "checkpoint.npz").is_file()
+    assert not out.exists()
+    resumed = gelcell("run", "--resume", str(out))
+    text, _ = resumed.communicate(timeout=600)
+    assert resumed.returncode == 0, text
+    assert "resumed from" in text
+    assert not (tmp_path / "res.partial").exists()
+    assert_same_series(read_series(out), read_series(tmp_path / "ref"), 1e-12)
+
+
+def main(*args):
+    return cli.main(list(args))
+
+
+BAD = [
+    (["--dt", "0"], "time.dt"),
+    (["--dt=-1e-7"], "time.dt"),
+    (["--dt", "nan"], "time.dt"),
+    (["--t-end", "0"], "time.t_end"),
+    (["--t-end", "1e-7", "--dt", "1e-6"], "time.dt"),
+    (["--inflow", "wave"], "inflow"),
+    (["--inflow", "sine:1,2"], "inflow"),
+    (["--inflow", "ramp:-1"], "inflow"),
+    (["--inflow", "square:0,1"], "inflow"),
+    (["--inflow", "sine:1,0.5,1e-6", "--until-steady"], "t_end"),
+    (["--time-tol", "2"], "time.time_tol"),
+    (["--output-every", "0"], "time.output_every"),
+]
+
+
+@pytest.mark.parametrize("args,name", BAD, ids=[" ".join(a) for a, _ in BAD])
+def test_bad_time_input_is_refused_before_meshing(tmp_path, capsys, args, name):
+    out = tmp_path / "out"
+    assert main("run", "shear", "--transient", *args, "--out", str(out)) == 2
+    err = capsys.readouterr().err
+    assert name in err, err
+    assert not out.exists() and not (tmp_path / "out.partial").exists()
+
+
+TABLES = [("t,f\n0,0\n1,1\n1,2\n", "increase"), ("0,0\n1,nan\n", "NaN"), ("t,f\n", "no (t, f) rows"),
+          ("0,0\n1\n", "two numbers"), ("1,0\n2,1\n", "start at")]
+
+
+@pytest.mark.parametrize("text,why", TABLES, ids=[w for _, w in TABLES])
+def test_malformed_inflow_table_is_refused(tmp_path, capsys, text, why):
+    table = tmp_path / "inflow.csv"
+    table.write_text(text)
+    out = tmp_path / "out"
+    assert main("run", "shear", "--transient", "--inflow", f"table:{table}", "--t-end", "1e-6",
+                "--out", str(out)) == 2
+    err = capsys.readouterr().err
+    assert "inflow" in err and why in err, err
+    assert not out.exists()
+
+
+def test_inflow_table_from_a_config_file_is_relative_to_it(tmp_path):
+    """A [time] table in a case file; a relative table path is read next to the file."""
+    from gelcell.parameters import CaseParameters
+    (tmp_path / "pump.csv").write_text("t,f\n0,0\n1e-6,1\n")
+    cfg = tmp_path / "case.toml"
+    cfg.write_text('[case]\nname = "shear"\n[time]\ntransient = true\ninflow = "table:pump.csv"\n'
+                   't_end = 2e-6\nscheme = "bdf2"\n')
+    args = cli.build_parser().parse_args(["run", "--config", str(cfg), "--out", str(tmp_path / "o")])
+    params = cli.case_parameters_from_args(args)
+    settings = cli.time_settings_from_args(args, params)
+    assert isinstance(params, CaseParameters) and settings.transient and settings.scheme == "bdf2"
+    assert settings.waveform(5e-7) == pytest.approx(0.5)
+    assert settings.inflow == f"table:{tmp_path / 'pump.csv'}"
+
+
+def test_time_options_need_transient(tmp_path, capsys):
+    assert main("run", "shear", "--dt", "1e-7", "--out", str(tmp_path / "o")) == 2
+    assert "--transient" in capsys.readouterr().err
+
+
+def test_resume_refuses_another_case_and_missing_checkpoints(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main("run", "--resume", str(out)) == 2
+    assert "nothing to resume" in capsys.readouterr().err
+    # a checkpoint of a shear run: resuming it as the normal-flow device is refused before meshing
+    partial = tmp_path / "run.partial"
+    partial.mkdir()
+    from gelcell.timesettings import TimeSettings
+    from gelcell.transient import run_record
+    record = run_record(case("shear"), TimeSettings(transient=True, t_end=1e-6),
+                        {"monolithic": False, "scheme": "serial", "acceleration": "iqn-ils", "gamma2": "dirichlet",
+                         "coupling": {}})
+    (partial / "run.json").write_text(json.dumps(record, default=str))
+    (partial / "checkpoint.npz").write_bytes(b"")
+    assert main("run", "normal", "--mesh-size", "3", "--resume", str(out)) == 2
+    err = capsys.readouterr().err
+    assert "another run" in err and "case" in err, err
+    assert main("run", "shear", "--mesh-size", "3", "--transient", "--dt", "1e-9", "--resume", str(out)) == 2
+    assert "time settings" in capsys.readouterr().err
+    assert sorted(os.listdir(partial)) == ["checkpoint.npz", "run.json"] and not out.exists()
+
+
+def test_time_scales_follow_the_model():
+    """tau_c = H^2 / (M k) is proportional to Ca; tau_KV = phi_f0 Ca / phi_s0 (model.md section 8)."""
+    p = case("shear")
+    a, b = time_scales(p), time_scales(p.with_ca(2 * p.physics.ca))
+    assert b["consolidation"] == pytest.approx(2 * a["consolidation"], rel=1e-12)
+    ph = p.physics
+    assert a["kelvin_voigt"] == pytest.approx((1 - ph.phi_s0) * ph.ca / ph.phi_s0, rel=1e-12)
+    depth = p.geometry.radius * (1 - np.cos(p.geometry.half_angle))
+    k = (1 - ph.phi_s0) / (ph.xi * ph.ca * ph.phi_s0)
+    assert a["consolidation"] == pytest.approx(depth**2 / (ph.phi_s0 * (2 + ph.lambda_s) * k), rel=1e-12)
+    # the physical time does not depend on the flow speed
+    assert p.to_si(a["consolidation"], "time") == pytest.approx(
+        p.with_ca(2 * p.physics.ca).to_si(b["consolidation"], "time"), rel=1e-12)
