@@ -176,8 +176,7 @@ class LayerClosedForm:
 
     def __init__(self, case: LayerCase, beta_fluid: float | None = None,
                  beta_network: float | None = None):
-        self.case = case
-        c = case
+        self.case = c = case
         self.G, self.U_w, self.q = c.drivers
         self.beta_fluid = c.beta if beta_fluid is None else float(beta_fluid)
         self.beta_network = c.beta if beta_network is None else float(beta_network)
@@ -202,14 +201,14 @@ class LayerClosedForm:
         self.P = self.g * c.H_g + self.dp_i
         self.M = 2.0 + c.lambda_s
 
-    # -- profiles: m is numpy, ufl or sympy ---------------------------------------------
-    def fluid(self, y, m: types.ModuleType = np) -> tuple:
-        """(V_x, V_y, P) at height y > 0."""
+    # -- profiles ---------------------------------------------------------------------------
+    def fluid(self, y) -> tuple:
+        """(V_x, V_y, P) at height y > 0 (y a number, array, UFL or sympy expression)."""
         zero = 0 * y
         return (self.U_i + self.tau * y - self.G * y**2 / 2, zero - self.q, zero + self.P)
 
     def gel(self, y, m: types.ModuleType = np) -> tuple:
-        """(v_f,x, v_f,y, u_x, u_y, p) at height y < 0."""
+        """(v_f,x, v_f,y, u_x, u_y, p) at height y < 0; ``m`` supplies cosh and sinh (numpy, ufl or sympy)."""
         c, zero = self.case, 0 * y
         s = (y + c.H_g) / self.delta
         w = self.w_inf * (1 - m.cosh(s)) + self.B * m.sinh(s)
@@ -359,7 +358,7 @@ class LayerDevice:
         cf, c = self.closed_form, self.case
         out = {}
         y = ufl.SpatialCoordinate(self.fluid_mesh)[1]
-        Vx, Vy, P = cf.fluid(y, ufl)
+        Vx, Vy, P = cf.fluid(y)
         area = c.length * c.H_f
         out["V"] = _relative_l2(self.fluid.velocity, ufl.as_vector((Vx, Vy)), self.fluid_mesh)
         out["P"] = _relative_l2(self.fluid.pressure, P, self.fluid_mesh, cf.stress_scale * math.sqrt(area))

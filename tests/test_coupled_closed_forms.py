@@ -81,7 +81,7 @@ def _model_equations(cf: LayerClosedForm) -> dict[str, tuple]:
     phi_s, xi, lam = c.phi_s0, c.xi, c.lambda_s
     phi_f = 1 - phi_s
     I = sp.eye(2)
-    Vx, Vy, P = cf.fluid(y, sp)
+    Vx, Vy, P = cf.fluid(y)
     w, v, ux, uy, p = cf.gel(y, sp)
     V, vf, u = sp.Matrix([Vx, Vy]), sp.Matrix([w, v]), sp.Matrix([ux, uy])
     P, p = P - cf.G * x, p - cf.G * x
