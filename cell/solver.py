@@ -133,6 +133,8 @@ class NeoHookeanCellSolver(FieldSolver):
     """
 
     name = "cell"
+    singular_hint = ("the cell is not held: a rigid-body motion is free; give it a Dirichlet (interface) "
+                     "condition, Robin springs, enough symmetry lines, or remove_rigid_modes=True")
 
     def __init__(self, mesh, facet_tags, *, mu: float, lmbda: float, stress_scale: float = 1.0,
                  displacement_scale: float = 1.0, interfaces: dict[str, Tags] | None = None,

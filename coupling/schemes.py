@@ -436,6 +436,7 @@ class CouplingScheme:
             except _ParticipantFailure as failure:
                 rec.reason = (f"diverged: participant {failure.participant!r} failed in iteration "
                               f"{failure.iteration} ({type(failure.error).__name__}: {failure.error})")
+                rec.participant_error = failure.error     # the cause of the CouplingDivergedError
                 self._print(f"it {k:3d}  participant {failure.participant!r} FAILED: {failure.error}")
                 return rec
             rnorm = {n: float(np.linalg.norm(self.values[n] - before[n])) for n in self.data}
@@ -515,7 +516,7 @@ class CouplingScheme:
         if rec.reason.startswith("diverged"):
             self.result = CouplingResult.from_windows(windows, list(self.data), reason=rec.reason)
             raise CouplingDivergedError(self._diverged_message(rec, rec.reason[len("diverged: "):]),
-                                        self.result)
+                                        self.result) from getattr(rec, "participant_error", None)
         if not rec.converged:
             policy = self.config.on_max_iterations
             if policy == "raise":

@@ -1,39 +1,274 @@
-"""Output that is written whole or not at all."""
+"""Output that is written whole or not at all, into directories gelcell made itself.
+
+Safety rules of :func:`atomic_directory` (checked up front by
+:func:`check_output_target`, which raises :class:`OutputError`):
+
+* gelcell replaces only a directory it wrote itself, recognised by the
+  marker file ``.gelcell-output`` (JSON: tool, version, command, time) in it,
+  or an empty directory.  It refuses an empty path, the current directory
+  or one containing it, an existing file, a symbolic link, a non-empty
+  directory without the marker, and a parent it cannot write in.
+* New results go to a temporary sibling ``.tmp-<name>-*``.  When every rank
+  has finished, the old directory is renamed aside (``.old-<name>-*``), the
+  new one renamed in, and only then the old one deleted: a failure leaves
+  either the old or the new results at the path, never a mixture.
+* On an exception, SIGINT or SIGTERM (if a handler raises, see
+  :func:`gelcell.errors.install_signal_handlers`) the temporary directory is
+  deleted.  Signals that arrive while the directories are renamed are held
+  until the rename is done.
+
+The one exception to "nothing left behind" is ``partial=True`` (time-dependent
+runs): the working directory is the fixed sibling ``<path>.partial``, which
+holds the checkpoints, survives failures and signals, is reused by a resumed
+run, and is promoted to ``<path>`` on success.
+"""
 
 from __future__ import annotations
 
 import contextlib
+import datetime
 import json
+import logging
 import os
+import shlex
 import shutil
+import signal
+import sys
 import tempfile
+import threading
 import typing
 
 import numpy as np
 
 from mpi4py import MPI
 
-__all__ = ["atomic_path", "write_json", "atomic_directory"]
+from femtools.errors import OutputError
+
+__all__ = ["atomic_path", "write_json", "atomic_directory", "check_output_target", "OutputError",
+           "MARKER", "PARTIAL_SUFFIX", "is_gelcell_output", "deferred_signals"]
+
+log = logging.getLogger(__name__)
+
+#: Name of the marker file in every output directory gelcell writes
+MARKER = ".gelcell-output"
+#: Suffix of the working directory of ``atomic_directory(..., partial=True)``
+PARTIAL_SUFFIX = ".partial"
+_TOOL = "gelcell"
+
+
+# --------------------------------------------------------------------------- marker
+def _marker_info() -> dict:
+    try:
+        from importlib.metadata import version
+        ver = version(_TOOL)
+    except Exception:  # noqa: BLE001  (not installed: the marker still identifies the tool)
+        ver = "unknown"
+    return {"tool": _TOOL, "version": ver,
+            "command": shlex.join([os.path.basename(sys.argv[0] or _TOOL)] + sys.argv[1:]),
+            "created": datetime.datetime.now().astimezone().isoformat(timespec="seconds")}
+
+
+def _write_marker(directory: str) -> None:
+    with open(os.path.join(directory, MARKER), "w") as f:
+        json.dump(_marker_info(), f, indent=2)
+        f.write("\n")
+
+
+def is_gelcell_output(path: str) -> bool:
+    """True if ``path`` is a directory holding gelcell's marker file."""
+    marker = os.path.join(path, MARKER)
+    if os.path.islink(marker) or not os.path.isfile(marker):
+        return False
+    try:
+        with open(marker) as f:
+            info = json.load(f)
+    except (OSError, ValueError):
+        return False
+    return isinstance(info, dict) and info.get("tool") == _TOOL
+
+
+# --------------------------------------------------------------------------- checks
+def _target_problem(full: str, shown: str, empty_ok: bool) -> str | None:
+    """Why the existing ``full`` may not be replaced (None if it may)."""
+    if os.path.islink(full):
+        return f"{shown!r} is a symbolic link: give the directory it points to, or another --out"
+    if not os.path.lexists(full):
+        return None
+    if not os.path.isdir(full):
+        return (f"{shown!r} is an existing file, not a directory: gelcell does not replace it; "
+                f"choose another --out, or move the file yourself")
+    if is_gelcell_output(full) or (empty_ok and not os.listdir(full)):
+        return None
+    return (f"{shown!r} already exists and holds files gelcell did not write (no {MARKER} marker): "
+            f"gelcell replaces only its own output directories; choose a new --out, or move or "
+            f"delete that directory yourself")
+
+
+def _refusal(path, partial: bool) -> str | None:
+    """Why ``path`` may not be used as an output directory (None if it may)."""
+    if path is None or not os.fspath(path).strip():
+        return ("the output directory is an empty string: give a directory, e.g. --out results/run1 "
+                "(is a shell variable such as $OUT unset?)")
+    shown = os.fspath(path)
+    full = os.path.abspath(shown)
+    cwd = os.getcwd()
+    if os.path.commonpath([full, cwd]) == full:
+        return (f"the output directory {shown!r} is the current directory or contains it: gelcell "
+                f"replaces its output directory as a whole; give a new subdirectory, "
+                f"e.g. --out {os.path.join(shown, 'results')}")
+    problem = _target_problem(full, shown, empty_ok=True)
+    if problem is None and partial:
+        # the checkpoint directory of an interrupted run is reused only if gelcell made it
+        problem = _target_problem(full + PARTIAL_SUFFIX, shown + PARTIAL_SUFFIX, empty_ok=False)
+    if problem is not None:
+        return problem
+    existing = os.path.dirname(full)
+    while not os.path.lexists(existing):
+        existing = os.path.dirname(existing)
+    if not os.path.isdir(existing):
+        return f"cannot create {shown!r}: {existing!r} is a file, not a directory; choose another --out"
+    try:        # the real test of writability (os.access is always true for root)
+        os.rmdir(tempfile.mkdtemp(prefix=".gelcell-probe-", dir=existing))
+    except OSError as exc:
+        return (f"cannot write the output directory {shown!r}: {existing!r} is not writable "
+                f"({exc.strerror}); choose an --out in a writable directory")
+    return None
+
+
+def _on_rank0(comm: MPI.Comm, action: typing.Callable[[], typing.Any]):
+    """Run ``action`` on rank 0; return its result (or raise its OutputError) on every rank."""
+    result, error = None, None
+    if comm.rank == 0:
+        try:
+            result = action()
+        except OSError as exc:
+            error = f"{exc.strerror or exc}: {exc.filename}" if exc.filename else str(exc)
+    result, error = comm.bcast((result, error), root=0)
+    if error is not None:
+        raise OutputError(error)
+    return result
+
+
+def check_output_target(path, comm: MPI.Comm = MPI.COMM_WORLD, partial: bool = False) -> str:
+    """Raise :class:`OutputError` unless ``path`` may be written by :func:`atomic_directory`.
+
+    Call it before any meshing or solving.  Returns the absolute path.
+    """
+    problem = _on_rank0(comm, lambda: _refusal(path, partial))
+    if problem is not None:
+        raise OutputError(problem)
+    return os.path.abspath(os.fspath(path))
+
+
+# --------------------------------------------------------------------------- signals
+@contextlib.contextmanager
+def deferred_signals(signals: typing.Iterable[int] = (signal.SIGINT, signal.SIGTERM)):
+    """Hold ``signals`` inside the block; deliver them (to the previous handlers) after it."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending: list[int] = []
+    previous = {s: signal.getsignal(s) for s in signals}
+    for s, handler in previous.items():
+        if handler is not None:          # None: a handler installed outside Python; leave it
+            signal.signal(s, lambda signum, frame: pending.append(signum))
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            if handler is not None:
+                signal.signal(s, handler)
+        for s in dict.fromkeys(pending):
+            signal.raise_signal(s)
+
+
+# --------------------------------------------------------------------------- directories
+def _promote(work: str, full: str, partial: bool) -> None:
+    """Replace ``full`` by ``work``: old aside, new in, old deleted (rank 0)."""
+    problem = _target_problem(full, full, empty_ok=True)   # it may have changed during the run
+    if problem is not None:
+        raise OSError(f"{problem}; the new results are kept in {work}")
+    os.chmod(work, 0o755)                   # mkdtemp makes it private
+    parent, name = os.path.split(full)
+    old = None
+    try:
+        if os.path.lexists(full):
+            old = tempfile.mkdtemp(prefix=f".old-{name}-", dir=parent)
+            os.replace(full, old)            # onto the empty placeholder: atomic
+        os.replace(work, full)
+    except OSError as exc:
+        if old is not None and not os.path.lexists(full):
+            os.replace(old, full)            # put the previous results back
+        elif old is not None:
+            os.rmdir(old)
+        if not partial:
+            shutil.rmtree(work, ignore_errors=True)
+        raise OSError(f"could not move the new results into {full!r} ({exc.strerror or exc}); "
+                      f"the previous contents of {full!r} are unchanged") from exc
+    if old is not None:
+        try:
+            shutil.rmtree(old)
+        except OSError as exc:
+            log.warning("the previous results were moved to %s but could not be deleted (%s); "
+                        "delete it yourself", old, exc)
+
+
+def _prepare(full: str, partial: bool) -> str:
+    """Create the working directory with its marker (rank 0); return its path."""
+    parent = os.path.dirname(full)
+    os.makedirs(parent, exist_ok=True)
+    if partial:
+        work = full + PARTIAL_SUFFIX
+        if not os.path.isdir(work):
+            os.mkdir(work)
+            _write_marker(work)
+        return work
+    work = tempfile.mkdtemp(prefix=f".tmp-{os.path.basename(full)}-", dir=parent)
+    _write_marker(work)
+    return work
 
 
 @contextlib.contextmanager
-def _commit(tmp: str, path: str, comm: MPI.Comm, directory: bool):
-    """Move ``tmp`` to ``path`` if the block succeeded on every rank, else delete it."""
+def atomic_directory(path, comm: MPI.Comm = MPI.COMM_WORLD, partial: bool = False):
+    """Yield a working directory that replaces ``path`` as a whole when the block succeeds.
+
+    ``path`` is checked first (:func:`check_output_target`).  The working
+    directory carries the marker.  On success on every rank the old ``path`` is
+    renamed aside, the working directory renamed to ``path`` and the old one
+    deleted.  On an exception (incl. KeyboardInterrupt or a raising SIGTERM
+    handler) on any rank the working directory is deleted and ``path`` is
+    unchanged, except with ``partial=True``: the working directory is then
+    ``path + ".partial"`` (reused as it is if it exists, so a resumed run
+    continues from its checkpoints) and is kept on failure.
+    """
+    full = check_output_target(path, comm, partial)
+    work = _on_rank0(comm, lambda: _prepare(full, partial))
+    ok = False
+    try:
+        yield work
+        ok = True
+    finally:
+        with deferred_signals():
+            ok = comm.allreduce(ok, op=MPI.LAND)
+            if ok:
+                _on_rank0(comm, lambda: _promote(work, full, partial))
+            elif not partial and comm.rank == 0:
+                shutil.rmtree(work, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def _commit(tmp: str, path: str, comm: MPI.Comm):
+    """Move the file ``tmp`` to ``path`` if the block succeeded on every rank, else delete it."""
     ok = False
     try:
         yield
         ok = True
     finally:
         ok = comm.allreduce(ok, op=MPI.LAND)
-        comm.Barrier()
         if comm.rank == 0:
             if ok:
-                os.chmod(tmp, 0o755 if directory else 0o644)  # mkdtemp/mkstemp make them private
-                if directory and os.path.isdir(path):
-                    shutil.rmtree(path)
+                os.chmod(tmp, 0o644)         # mkstemp makes it private
                 os.replace(tmp, path)
-            elif directory:
-                shutil.rmtree(tmp, ignore_errors=True)
             elif os.path.exists(tmp):
                 os.remove(tmp)
 
@@ -54,54 +289,7 @@ def atomic_path(path: str, comm: MPI.Comm = MPI.COMM_WORLD):
                                    dir=os.path.dirname(path))
         os.close(fd)
     tmp = comm.bcast(tmp, root=0)
-    with _commit(tmp, path, comm, directory=False):
-        yield tmp
-
-
-def _promote(work: str, path: str) -> None:
-    """Replace ``path`` by ``work``: the old results aside, the new ones in, then the old ones deleted."""
-    old = None
-    if os.path.exists(path):
-        old = tempfile.mkdtemp(prefix=".old-" + os.path.basename(path) + "-", dir=os.path.dirname(path))
-        os.rmdir(old)
-        os.replace(path, old)
-    os.replace(work, path)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
-
-
-@contextlib.contextmanager
-def atomic_directory(path: str, comm: MPI.Comm = MPI.COMM_WORLD, partial: bool = False):
-    """Yield a temporary directory; on success it replaces ``path`` as a whole.
-
-    ``partial=True``: the working directory is the fixed sibling
-    ``path + ".partial"`` (created if missing, reused if present, e.g. to
-    resume an interrupted run from the checkpoint it holds); it is kept on
-    failure or interruption and promoted to ``path`` on success.
-    """
-    path = os.path.abspath(path)
-    if partial:
-        work = path + ".partial"
-        if comm.rank == 0:
-            os.makedirs(work, exist_ok=True)
-        comm.Barrier()
-        ok = False
-        try:
-            yield work
-            ok = True
-        finally:
-            ok = comm.allreduce(ok, op=MPI.LAND)
-            comm.Barrier()
-            if ok and comm.rank == 0:
-                _promote(work, path)
-            comm.Barrier()
-        return
-    tmp = None
-    if comm.rank == 0:
-        os.makedirs(os.path.dirname(path), exist_ok=True)
-        tmp = tempfile.mkdtemp(prefix=".tmp-" + os.path.basename(path) + "-", dir=os.path.dirname(path))
-    tmp = comm.bcast(tmp, root=0)
-    with _commit(tmp, path, comm, directory=True):
+    with _commit(tmp, path, comm):
         yield tmp
 
 

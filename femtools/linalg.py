@@ -23,14 +23,19 @@ import ufl
 from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
 
+from femtools.errors import NewtonError, SingularSystemError
+
 __all__ = ["DirectSolver", "LinearSolver", "NewtonSolver", "SolverStats", "direct_solver",
-           "assemble_residual_vector", "global_norm", "jacobian_at_rest"]
+           "assemble_residual_vector", "global_norm", "jacobian_at_rest", "SingularSystemError",
+           "NewtonError"]
 
 _counter = itertools.count()
 _ICNTL = re.compile(r"^mat_mumps_icntl_(\d+)$")
 
 #: MUMPS controls applied to every factorisation: more workspace slack (14) and
-#: null-pivot detection (24) keep the saddle-point factorisations robust
+#: null-pivot detection (24).  With detection on, MUMPS does not stop at a zero
+#: pivot: it patches it and counts it in INFOG(28), which ``DirectSolver.factorize``
+#: reads to refuse a singular system (none of the device systems has a null pivot).
 DEFAULT_ICNTL = {14: 100, 24: 1}
 
 
@@ -85,11 +90,17 @@ class DirectSolver:
         """(Re)factorise the current operator."""
         pc = self.ksp.getPC()
         pc.setFactorSetUpSolverType()
-        if pc.getFactorSolverType() == "mumps":
+        mumps = pc.getFactorSolverType() == "mumps"
+        if mumps:
             F = pc.getFactorMatrix()
             for k, v in self.icntl.items():
                 F.setMumpsIcntl(k, v)
         self.ksp.setUp()
+        if mumps:
+            # INFOG is global: every rank sees the same values and raises alike
+            F = pc.getFactorMatrix()
+            if F.getMumpsInfog(1) == -10 or (self.icntl.get(24) == 1 and F.getMumpsInfog(28) > 0):
+                raise SingularSystemError(self.name, max(F.getMumpsInfog(28), 1))
 
     def solve(self, b: PETSc.Vec, x: PETSc.Vec) -> None:
         self.ksp.solve(b, x)
@@ -273,7 +284,15 @@ class NewtonSolver:
     def _assemble_jacobian(self) -> None:
         sub = None if self._active is None else (self._active, self._A_active)
         form = self.J if self._exact else self.J_reference
-        operator = _assemble_and_factorize(self.A, form, self.bcs, self.solver, self.stats, sub)
+        try:
+            operator = _assemble_and_factorize(self.A, form, self.bcs, self.solver, self.stats, sub)
+        except SingularSystemError as exc:
+            if self.stats["factorizations"] == 0:
+                raise           # singular from the start: a missing boundary condition
+            # an operator that was regular before lost rank at the current iterate: the
+            # deformation degenerates (e.g. elements fold over), not a missing condition
+            raise NewtonError(self.name, f"the Jacobian became singular ({exc.null_pivots} null pivots) at "
+                                         f"the current iterate", self.history) from exc
         if self._active is not None:
             self._A_active = operator
         self._have_jacobian = True
@@ -334,8 +353,8 @@ class NewtonSolver:
             self.u.x.scatter_forward()
             du, un = self.du.norm(), self.u.vector.norm()
             if not (np.isfinite(du) and np.isfinite(un)):
-                raise FloatingPointError(f"{self.name}: Newton iterate contains NaN or Inf "
-                                         f"(iteration {it}, history {self.history})")
+                raise NewtonError(self.name, f"the iterate contains NaN or Inf at iteration {it}",
+                                  self.history)
             rel = du / un if un > 0 else du
             if (stale and previous is not None and rel > self.contraction * previous
                     and rel >= 1e3 * self.rtol):
@@ -357,8 +376,7 @@ class NewtonSolver:
                 self._have_jacobian = False
                 self._exact = True
             previous = rel
-        raise RuntimeError(f"{self.name}: Newton did not converge in {self.max_it} iterations; "
-                           f"relative corrections {['%.2e' % h for h in self.history]}")
+        raise NewtonError(self.name, f"no convergence in {self.max_it} iterations", self.history)
 
 
 def jacobian_at_rest(F: ufl.Form, u: fem.Function, coefficients=()) -> ufl.Form:

@@ -19,7 +19,7 @@ from dolfinx import cpp as _cpp
 from dolfinx.io import gmshio
 from dolfinx.mesh import create_mesh, meshtags_from_entities
 
-__all__ = ["model_to_mesh", "model_to_region_mesh"]
+__all__ = ["model_to_mesh", "model_to_region_mesh", "connected_components"]
 
 
 def model_to_mesh(model, comm: MPI.Comm, rank: int = 0, gdim: int = 2):
@@ -79,3 +79,37 @@ def model_to_region_mesh(model, comm: MPI.Comm, rank: int, region_tags: typing.I
                                         values.astype(np.int32))
     facet_tags.name = "facet_tags"
     return msh, facet_tags
+
+
+def connected_components(msh) -> tuple[np.ndarray, int]:
+    """Connected parts of ``msh`` (cells joined through facets), on any number of ranks.
+
+    Returns ``(labels, count)``: a component number in ``range(count)`` for each
+    local cell (owned and ghost), the same on every rank.  Every rank gathers the
+    cell-to-cell adjacency by global indices (fine for the device's 2-D meshes):
+    facets with two local cells give an edge directly; a facet with one local
+    cell is paired with the other rank's copy of it (an exterior facet has none).
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components as components
+    tdim = msh.topology.dim
+    msh.topology.create_connectivity(tdim - 1, tdim)
+    f2c = msh.topology.connectivity(tdim - 1, tdim)
+    cmap, fmap = msh.topology.index_map(tdim), msh.topology.index_map(tdim - 1)
+    n_cells = cmap.size_local + cmap.num_ghosts
+    cell_ids = cmap.local_to_global(np.arange(n_cells, dtype=np.int32))
+    n_links = np.diff(f2c.offsets)
+    first = cell_ids[f2c.array[f2c.offsets[:-1]]]
+    two = n_links == 2
+    edges = [np.column_stack([first[two], cell_ids[f2c.array[f2c.offsets[:-1][two] + 1]]])]
+    single = np.flatnonzero(n_links == 1).astype(np.int32)
+    halves = np.column_stack([fmap.local_to_global(single), first[single]])
+    halves = np.vstack(msh.comm.allgather(halves))
+    halves = halves[np.lexsort((halves[:, 1], halves[:, 0]))]
+    pair = np.flatnonzero((halves[1:, 0] == halves[:-1, 0]) & (halves[1:, 1] != halves[:-1, 1]))
+    edges.append(np.column_stack([halves[pair, 1], halves[pair + 1, 1]]))
+    edges = np.vstack(msh.comm.allgather(np.vstack(edges)))
+    n = cmap.size_global
+    graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    count, labels = components(graph, directed=False)
+    return labels[cell_ids], int(count)

@@ -21,6 +21,7 @@ import time
 import numpy as np
 
 from femtools.interface import InterfaceNodes
+from femtools.linalg import SingularSystemError
 
 __all__ = ["FieldSolver"]
 
@@ -29,6 +30,8 @@ class FieldSolver(abc.ABC):
     """Base class: interface bookkeeping, input validation and timing."""
 
     name: str = "field"
+    #: the condition a singular system of this field most likely lacks (see SingularSystemError)
+    singular_hint: str = ""
 
     def __init__(self):
         self._interfaces: dict[str, InterfaceNodes] = {}
@@ -90,6 +93,9 @@ class FieldSolver(abc.ABC):
 
     def solve(self) -> None:
         t0 = time.perf_counter()
-        self._solve()
+        try:
+            self._solve()
+        except SingularSystemError as exc:
+            raise exc.add_hint(self.singular_hint)
         self.timing["solve"] += time.perf_counter() - t0
         self.timing["solves"] += 1

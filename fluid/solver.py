@@ -52,6 +52,7 @@ from dolfinx import cpp as _cpp, fem, mesh as dmesh
 
 from femtools.functions import quadrature_measure
 from femtools.interface import InterfaceNodes
+from femtools.mesh import connected_components
 from femtools.linalg import LinearSolver, SolverStats
 from femtools.solver import FieldSolver
 from fluid import forms
@@ -191,6 +192,9 @@ class StokesSolver(FieldSolver):
         solver.solve()
         out = solver.interface_data("Gamma1")    # {"velocity": ..., "traction": ...}
     """
+
+    singular_hint = ("the velocity is fixed nowhere, or the pressure only up to a constant: prescribe the "
+                     "velocity somewhere and leave the normal velocity free on part of every fluid region")
 
     def __init__(self, mesh: dmesh.Mesh, facet_tags: dmesh.MeshTagsMetaClass, *,
                  viscosity: float,
@@ -464,7 +468,12 @@ class StokesSolver(FieldSolver):
         return fem.dirichletbc(fem.Function(self.Q), dofs, self.W.sub(1))
 
     def _check_pressure_determined(self) -> None:
-        """Raise if V.n is prescribed on the whole boundary (P then only up to a constant)."""
+        """Raise if V.n is prescribed on the whole boundary of a connected fluid part.
+
+        In such a part (cells connected through facets) P is determined only up
+        to a constant.  The normal-flow device has two fluid parts, upstream and
+        downstream of the gel, so each one needs a free boundary of its own.
+        """
         msh, fdim = self.mesh, self._fdim
         ext = dmesh.exterior_facet_indices(msh.topology)
         free = np.ones(ext.size, dtype=bool)
@@ -478,10 +487,27 @@ class StokesSolver(FieldSolver):
             # component c is the normal one on a facet along the other axis
             along = d[:, c] <= 1e-12 * (d.sum(axis=1) + 1e-300)
             free &= ~(np.isin(ext, self._facets(tags)) & along)
-        # facets of ghost cells appear on two ranks; any free facet anywhere is enough
-        if self.comm.allreduce(int(free.sum()), op=MPI.SUM) == 0:
-            raise ValueError(f"{self.name}: the normal velocity is prescribed on the whole boundary, so the "
-                             f"pressure is determined only up to a constant; pass pressure_pin=(x, y)")
+        labels, count = connected_components(msh)
+        f2c = msh.topology.connectivity(fdim, msh.topology.dim)
+        ext_labels = labels[f2c.array[f2c.offsets[ext]]] if ext.size else np.zeros(0, dtype=labels.dtype)
+        # facets of ghost cells appear on two ranks; a free facet anywhere frees its part
+        has_free = np.zeros(count, dtype=np.int32)
+        has_free[ext_labels[free]] = 1
+        self.comm.Allreduce(MPI.IN_PLACE, has_free, op=MPI.MAX)
+        enclosed = np.flatnonzero(has_free == 0)
+        if enclosed.size == 0:
+            return
+        # a point of the first enclosed part: the mean of its owned cells' first vertices
+        n_owned = msh.topology.index_map(msh.topology.dim).size_local
+        mine = np.flatnonzero(labels[:n_owned] == enclosed[0])
+        first_nodes = msh.geometry.dofmap.array[msh.geometry.dofmap.offsets[mine]]
+        sums = np.append(x[first_nodes, :2].sum(axis=0), mine.size)
+        self.comm.Allreduce(MPI.IN_PLACE, sums, op=MPI.SUM)
+        where = sums[:2] / sums[2]
+        raise ValueError(f"{self.name}: the normal velocity is prescribed on the whole boundary of "
+                         f"{enclosed.size} of its {count} connected part(s) (the first one near "
+                         f"({where[0]:.3g}, {where[1]:.3g})), so the pressure there is determined only up "
+                         f"to a constant; leave part of that boundary free or pass pressure_pin=(x, y)")
 
     def _setup_traction_recovery(self) -> None:
         """Interface mass matrices: int lambda.s ds_Gamma, all non-interface rows pinned."""

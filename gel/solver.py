@@ -155,6 +155,9 @@ class PoroelasticGelSolver(FieldSolver):
         flux = gel.interface_data("Gamma1")["superficial_velocity"]
     """
 
+    singular_hint = ("the network is not anchored (give a no_slip or Dirichlet condition on u), "
+                     "or the pore pressure is fixed only up to a constant (leave the flow free somewhere)")
+
     def __init__(self, mesh, facet_tags, params: GelParameters, *,
                  no_slip: typing.Iterable[int] = (),
                  symmetry: typing.Iterable[tuple] = (),

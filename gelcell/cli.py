@@ -4,15 +4,23 @@ Subcommands are built with :func:`add_case_arguments` (the options that
 define a case) and :func:`case_parameters_from_args` (turn them into a
 validated :class:`~gelcell.parameters.CaseParameters`), so every command
 reads a case the same way: defaults < ``--config`` file < command-line
-options.  A bad parameter prints its :class:`ParameterError` message and
-exits with status 2, before anything is meshed or solved.
+options.
+
+Everything that can be checked is checked before anything is meshed or
+solved: the parameters and the ``[coupling]`` table, the model's limits
+(``gelcell.validity``) and the output directory (``femtools.io``).  Every
+expected failure ends with one line on stderr and the exit code of
+``gelcell.errors``; ``gelcell --debug`` adds the traceback and the form
+compiler's log.
 """
 
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import sys
+import traceback
 import typing
 
 from mpi4py import MPI
@@ -38,6 +46,12 @@ Case options (--e, --ca, --cell-moduli, --gel-moduli, --mesh-size, --cell/--no-c
 override the values of a --config TOML file, which override the defaults of
 model.md (see examples/case_baseline_shear.toml).  Run "gelcell COMMAND --help"
 for the options of a command.
+
+--out DIR is replaced as a whole, and only if gelcell wrote it (it holds the
+marker file .gelcell-output) or it is empty.  Exit codes: 0 success, 1 internal
+error, 2 bad parameters or configuration, 3 output directory refused, 4 model
+limits, 5 coupling diverged, 6 coupling not converged, 7 singular system,
+8 Newton failure, 9 some sweep values failed, 130 SIGINT, 143 SIGTERM.
 """
 
 
@@ -128,8 +142,18 @@ def _counts_table(counts: dict) -> str:
     return "\n".join(lines)
 
 
+def _check_before_meshing(cases: typing.Iterable[CaseParameters], out: str, partial: bool = False) -> None:
+    """Model limits of every case, then the output directory (raise before anything is meshed)."""
+    from femtools.io import check_output_target
+    from gelcell.validity import check_case
+    for params in cases:
+        check_case(params)
+    check_output_target(out, MPI.COMM_WORLD, partial)
+
+
 def cmd_mesh(args: argparse.Namespace) -> int:
     params = case_parameters_from_args(args)         # validated before any meshing
+    _check_before_meshing([params], args.out)
     from femtools.io import atomic_directory, write_json
     from gelcell.geometry import build_device
     comm = MPI.COMM_WORLD
@@ -227,7 +251,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     if settings.transient:
         if args.compare_no_cell:
             raise ParameterError("--compare-no-cell is for steady runs, not with --transient")
+        from gelcell.runner import partitioned_config
         from gelcell.transient import run_transient_case
+        if not args.monolithic:
+            partitioned_config(params, args.scheme, args.acceleration)
+        _check_before_meshing([params], args.out, partial=True)
         run_transient_case(params, settings, args.out, monolithic=args.monolithic, scheme=args.scheme,
                            acceleration=args.acceleration, comm=MPI.COMM_WORLD, figures=not args.no_figures,
                            gamma2=args.gamma2)
@@ -238,7 +266,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.scheme.endswith("explicit"):
         raise ParameterError(f"--scheme {args.scheme} exchanges once per time window: add --transient")
     from gelcell.results import gamma_profiles
-    from gelcell.runner import report, run_case, solve_partitioned
+    from gelcell.runner import partitioned_config, report, run_case, solve_partitioned
+    if not args.monolithic:
+        partitioned_config(params, args.scheme, args.acceleration)
+    _check_before_meshing([params], args.out)
     comm = MPI.COMM_WORLD
     overlay, extra = None, {}
     if args.compare_no_cell and params.with_cell:
@@ -277,6 +308,7 @@ def _cmd_resume(args: argparse.Namespace) -> int:
     params = CaseParameters.from_dict(record["case"], source=f"{args.resume}.partial/run.json")
     settings = TimeSettings.from_dict(record["time"], source=f"{args.resume}.partial/run.json")
     m = record["method"]
+    _check_before_meshing([params], args.resume, partial=True)
     run_transient_case(params, settings, args.resume, monolithic=m["monolithic"], scheme=m["scheme"],
                        acceleration=m["acceleration"], coupling=m.get("coupling"), comm=MPI.COMM_WORLD,
                        figures=not args.no_figures, gamma2=m["gamma2"], resume=True)
@@ -303,16 +335,25 @@ def sweep_parameters(params: CaseParameters, name: str, value: float) -> CasePar
 def cmd_sweep(args: argparse.Namespace) -> int:
     base = case_parameters_from_args(args)
     cases = [sweep_parameters(base, args.param, v) for v in args.values]   # validate all first
-    from gelcell.sweep import run_sweep
+    from gelcell.runner import partitioned_config
+    from gelcell.sweep import check_distinct, run_sweep
+    check_distinct(args.param, args.values)
+    if not args.monolithic:
+        partitioned_config(base, args.scheme, args.acceleration)
+    _check_before_meshing(cases, args.out)
     run_sweep(cases, args.param, args.values, args.out, monolithic=args.monolithic, scheme=args.scheme,
-              acceleration=args.acceleration, verbose=not args.quiet, gamma2=args.gamma2)
+              acceleration=args.acceleration, verbose=not args.quiet, gamma2=args.gamma2, debug=args.debug)
     return 0
 
 
 # --------------------------------------------------------------------------- study
 def cmd_study(args: argparse.Namespace) -> int:
-    from gelcell.study import markdown_table, run_study, update_readme
-    study = run_study(args.out, quick=args.quick, mesh_size=args.mesh_size, max_iterations=args.max_iterations)
+    if args.max_iterations < 1:
+        raise ParameterError(f"--max-iterations = {args.max_iterations} must be at least 1")
+    from gelcell.study import markdown_table, run_study, study_cases, study_mesh_size, update_readme
+    mesh_size = study_mesh_size(args.quick, args.mesh_size)
+    _check_before_meshing([c.parameters(mesh_size) for c in study_cases(args.quick)], args.out)
+    study = run_study(args.out, quick=args.quick, mesh_size=mesh_size, max_iterations=args.max_iterations)
     if MPI.COMM_WORLD.rank == 0:
         print(study["table"])
         if args.update_readme:
@@ -327,6 +368,8 @@ def build_parser() -> argparse.ArgumentParser:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     from gelcell import __version__
     parser.add_argument("--version", action="version", version=f"gelcell {__version__}")
+    parser.add_argument("--debug", action="store_true",
+                        help="on an error also print the Python traceback; show debug logs (form compiler)")
     sub = parser.add_subparsers(dest="command", title="commands", metavar="COMMAND")
     p = sub.add_parser("mesh", help="build the meshes of a device and write them as XDMF",
                        description="Build the gmsh model of a device, the region meshes "
@@ -393,19 +436,37 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def configure_logging(debug: bool = False) -> None:
+    """Warnings on stderr; debug records (incl. the C compiler lines of FFCx's JIT) only with ``debug``.
+
+    FFCx calls ``logging.basicConfig()`` when imported and the compiler driver
+    logs each command at INFO on the root logger; a handler of our own, at
+    WARNING unless ``debug``, keeps those lines out of a normal run.
+    """
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setLevel(logging.DEBUG if debug else logging.WARNING)
+    logging.basicConfig(handlers=[handler], format="%(levelname)s:%(name)s: %(message)s",
+                        level=logging.DEBUG if debug else logging.WARNING, force=True)
+
+
 def main(argv: typing.Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     args.argv = None if argv is None else list(argv)
+    configure_logging(args.debug)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    try:
-        return int(args.func(args) or 0)
-    except ParameterError as exc:
-        if MPI.COMM_WORLD.rank == 0:
-            print(f"gelcell {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+    from gelcell.errors import exit_code, install_signal_handlers, message
+    with install_signal_handlers():
+        try:
+            return int(args.func(args) or 0)
+        except (Exception, KeyboardInterrupt) as exc:      # every failure: one line and its exit code
+            if MPI.COMM_WORLD.rank == 0:
+                if args.debug:
+                    traceback.print_exc()
+                print(f"gelcell {args.command}: error: {message(exc)}", file=sys.stderr, flush=True)
+            return exit_code(exc)
 
 
 if __name__ == "__main__":

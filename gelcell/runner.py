@@ -18,17 +18,19 @@ import numpy as np
 from mpi4py import MPI
 
 import coupling as cp
-from femtools.io import atomic_directory
+from femtools.io import atomic_directory, check_output_target
 from gelcell.boundaries import device_boundaries
 from gelcell.checks import format_residuals, interface_residuals
 from gelcell.device import Device, coupling_config
 from gelcell.geometry import build_device
 from gelcell.monolithic import MonolithicCoefficients, MonolithicSolver
 from gelcell.output import write_fields, write_json_file, write_profiles
-from gelcell.parameters import CaseParameters
+from gelcell.parameters import CaseParameters, ParameterError
 from gelcell.results import DeviceFields, fields_from_device, fields_from_monolithic, summarize
+from gelcell.validity import check_case, model_warnings
 
-__all__ = ["run_case", "solve_partitioned", "solve_monolithic", "format_summary", "CaseRun"]
+__all__ = ["run_case", "solve_partitioned", "solve_monolithic", "format_summary", "CaseRun",
+           "partitioned_config"]
 
 
 class CaseRun(typing.NamedTuple):
@@ -50,15 +52,30 @@ def monolithic_coefficients(params: CaseParameters) -> MonolithicCoefficients:
                                   stress_scale=params.stress_scale, displacement_scale=params.displacement_scale)
 
 
+def partitioned_config(params: CaseParameters, scheme: str = "serial", acceleration: str = "iqn-ils",
+                       coupling: typing.Mapping | None = None) -> dict:
+    """The ``[coupling]`` table of a partitioned run (defaults < the case's < ``coupling``), validated.
+
+    Raises :class:`ParameterError` naming the bad key or value, before anything is meshed.
+    """
+    config = coupling_config(scheme, acceleration, with_cell=params.with_cell,
+                             overrides=dict(coupling or params.coupling or {}))
+    try:
+        cp.load_config(config)
+    except ValueError as exc:
+        raise ParameterError(f"the [coupling] table is invalid: {exc}") from None
+    return config
+
+
 def solve_partitioned(params: CaseParameters, scheme: str = "serial", acceleration: str = "iqn-ils",
                       coupling: typing.Mapping | None = None, comm: MPI.Comm = MPI.COMM_WORLD,
                       verbose: bool = True, robin_coefficient: float | None = None,
                       checks: bool = True, gamma2: str = "dirichlet") -> CaseRun:
     """Solve a case with the partitioned scheme; summary with coupling, timing and checks."""
     t0 = time.perf_counter()
+    check_case(params)
+    config = partitioned_config(params, scheme, acceleration, coupling)
     device = Device(params, comm, robin_coefficient=robin_coefficient, gamma2=gamma2)
-    config = coupling_config(scheme, acceleration, with_cell=params.with_cell,
-                             overrides=dict(coupling or params.coupling or {}))
     t1 = time.perf_counter()
     result = device.solve(config, verbose=verbose)
     t_solve = time.perf_counter() - t1
@@ -95,6 +112,7 @@ def _cells(f) -> int:
 def solve_monolithic(params: CaseParameters, comm: MPI.Comm = MPI.COMM_WORLD, checks: bool = True) -> CaseRun:
     """Solve a case with the monolithic reference; same summary as the partitioned run."""
     t0 = time.perf_counter()
+    check_case(params)
     dev_mesh = build_device(params, comm, whole=True)
     msh, ct, ft = dev_mesh.whole
     b = device_boundaries(params.case, params.with_cell, getattr(params.geometry, "channel_height", 0.2))
@@ -181,6 +199,9 @@ def report(summary: dict, params: CaseParameters) -> dict:
                                f"= {params.cell_moduli_multiple:g} x the gel's drained modulus phi_s0 mu_s")
     out.update(summary)
     out["gel_quantities"], out["cell_quantities"] = gel, cell
+    model = out["model"] = dict(out.get("model") or {})
+    model["max_cell_strain"] = None if cell is None else cell["von_mises_strain"][1]
+    model["warnings"] = model_warnings(model)
     return out
 
 
@@ -208,10 +229,18 @@ def run_case(params: CaseParameters, out: str | None, *, monolithic: bool = Fals
              acceleration: str = "iqn-ils", coupling: typing.Mapping | None = None,
              comm: MPI.Comm = MPI.COMM_WORLD, verbose: bool = True, figures: bool = True,
              fields: bool = True, overlay_profiles: dict | None = None, stream=None,
-             extra_json: dict | None = None, gamma2: str = "dirichlet") -> dict:
-    """Solve one case and write its outputs into ``out`` (whole or not at all)."""
+             extra_json: dict | None = None, gamma2: str = "dirichlet", shown_path: str | None = None) -> dict:
+    """Solve one case and write its outputs into ``out`` (whole or not at all).
+
+    ``out`` and the model's limits are checked before anything is meshed; the
+    model's warnings go to stderr and to ``model.warnings`` in the summary.
+    ``shown_path`` is the path printed for ``out`` (the final path of a run
+    written inside a sweep's temporary directory).
+    """
     stream = stream or sys.stdout
     say = (lambda msg: print(msg, file=stream, flush=True)) if comm.rank == 0 else (lambda msg: None)
+    if out is not None:
+        check_output_target(out, comm)
     say(f"gelcell: {params.case} flow, {'with' if params.with_cell else 'without'} cell, "
         f"{'monolithic' if monolithic else f'partitioned ({scheme}, {acceleration})'}")
     if monolithic:
@@ -222,6 +251,9 @@ def run_case(params: CaseParameters, out: str | None, *, monolithic: bool = Fals
     say(format_summary(summary))
     if "interface_residuals" in summary:
         say(format_residuals(summary["interface_residuals"]))
+    if comm.rank == 0:
+        for warning in summary["model"]["warnings"]:
+            print(f"gelcell: warning: {warning}", file=sys.stderr, flush=True)
     if out is None:
         return summary
     with atomic_directory(out, comm) as tmp:
@@ -241,5 +273,5 @@ def run_case(params: CaseParameters, out: str | None, *, monolithic: bool = Fals
             written.append(name)
         summary["files"] = written
         write_json_file(os.path.join(tmp, "summary.json"), summary, comm)
-    say(f"wrote {os.path.abspath(out)}: " + ", ".join(written))
+    say(f"wrote {shown_path or os.path.abspath(out)}: " + ", ".join(written))
     return summary

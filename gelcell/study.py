@@ -29,14 +29,15 @@ import numpy as np
 from mpi4py import MPI
 
 import coupling as cp
-from femtools.io import atomic_directory
+from femtools.io import atomic_directory, check_output_target
 from gelcell.device import Device, coupling_config, default_robin_coefficient
 from gelcell.output import write_json_file
 from gelcell.parameters import CaseParameters
 from gelcell.results import fields_from_device, flat_quantities, relative_differences, summarize
 from gelcell.runner import solve_monolithic
 
-__all__ = ["Method", "StudyCase", "study_cases", "study_methods", "run_study", "markdown_table"]
+__all__ = ["Method", "StudyCase", "study_cases", "study_methods", "study_mesh_size", "run_study",
+           "markdown_table"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -289,11 +290,21 @@ def _plot(path: str, records: list[dict], cases: list[StudyCase]) -> None:
     plt.close(fig)
 
 
+def study_mesh_size(quick: bool, mesh_size: float | None = None) -> float:
+    """The element size factor of the study: ``mesh_size``, else 3 with ``quick``, else 2."""
+    return mesh_size if mesh_size is not None else (3.0 if quick else 2.0)
+
+
 def run_study(out: str | None, *, quick: bool = False, mesh_size: float | None = None,
               max_iterations: int = 150, comm: MPI.Comm = MPI.COMM_WORLD,
               log: typing.Callable[[str], None] | None = None) -> dict:
-    """Run the study; write study.csv/json/md and study_convergence.png into ``out``."""
-    mesh_size = mesh_size if mesh_size is not None else (3.0 if quick else 2.0)
+    """Run the study; write study.csv/json/md and study_convergence.png into ``out``.
+
+    ``out`` is checked before the first case is meshed (``femtools.io.check_output_target``).
+    """
+    mesh_size = study_mesh_size(quick, mesh_size)
+    if out is not None:
+        check_output_target(out, comm)
     log = log or ((lambda msg: print(msg, flush=True)) if comm.rank == 0 else (lambda msg: None))
     cases, methods = study_cases(quick), study_methods(quick)
     records, references = [], {}

@@ -1,20 +1,29 @@
-"""``gelcell sweep``: one case per value of a parameter, tabulated and plotted."""
+"""``gelcell sweep``: one case per value of a parameter, tabulated and plotted.
+
+A value whose run fails (the coupling diverges, a solver fails, ...) does not
+discard the others: the sweep writes every completed run, lists the failed
+values with their error in sweep.csv/sweep.json, and then raises
+:class:`gelcell.errors.SweepError`.
+"""
 
 from __future__ import annotations
 
 import csv
 import os
+import sys
+import traceback
 
 import numpy as np
 
 from mpi4py import MPI
 
 from femtools.io import atomic_directory
+from gelcell.errors import SweepError, exit_code, message
 from gelcell.output import write_json_file
-from gelcell.parameters import CaseParameters
+from gelcell.parameters import CaseParameters, ParameterError
 from gelcell.runner import run_case
 
-__all__ = ["run_sweep", "SWEEP_QUANTITIES"]
+__all__ = ["run_sweep", "run_name", "check_distinct", "SWEEP_QUANTITIES"]
 
 #: (column name, summary key, index or sub-key) of the tabulated quantities, paper units
 SWEEP_QUANTITIES = [
@@ -44,28 +53,72 @@ def _row(summary: dict) -> dict:
     row["iterations"] = c.get("iterations")
     row["converged"] = c.get("converged", True)
     row["Ca"] = summary["parameters"]["dimensionless"]["Ca"] if "dimensionless" in summary["parameters"] else None
+    row["model_warnings"] = "; ".join(summary["model"]["warnings"])
     return row
+
+
+def run_name(param: str, value: float) -> str:
+    """The directory of one run: ``runs/<param>=<value>`` (6 significant digits)."""
+    return f"{param}={value:g}"
+
+
+def check_distinct(param: str, values: list[float]) -> None:
+    """Raise :class:`ParameterError` if two values would share a run (and its directory)."""
+    names = [run_name(param, v) for v in values]
+    repeated = sorted({n for n in names if names.count(n) > 1}, key=names.index)
+    if repeated:
+        raise ParameterError(f"--values gives {', '.join(repeated)} more than once (values equal to 6 "
+                             f"significant digits are one run): give each value once")
 
 
 def run_sweep(cases: list[CaseParameters], param: str, values: list[float], out: str, *,
               monolithic: bool = False, scheme: str = "serial", acceleration: str = "iqn-ils",
-              verbose: bool = False, comm: MPI.Comm = MPI.COMM_WORLD, gamma2: str = "dirichlet") -> list[dict]:
-    """Run every case; write sweep.csv/json, sweep.png and runs/<param>=<value>/summary.json."""
-    rows = []
+              verbose: bool = False, comm: MPI.Comm = MPI.COMM_WORLD, gamma2: str = "dirichlet",
+              debug: bool = False) -> list[dict]:
+    """Run every case; write sweep.csv/json, sweep.png and runs/<param>=<value>/summary.json.
+
+    Values must be distinct (:func:`check_distinct`).  A value that fails is
+    recorded (``status`` "failed", ``error``) and the sweep goes on; if any
+    failed, :class:`SweepError` is raised after the completed runs are written.
+    An interruption (SIGINT, SIGTERM) discards the whole sweep.
+    """
+    check_distinct(param, values)
+    final = os.path.abspath(out)
+    rows, failures = [], []
     with atomic_directory(out, comm) as tmp:
         for value, params in zip(values, cases):
-            run_dir = os.path.join(tmp, "runs", f"{param}={value:g}")
-            summary = run_case(params, run_dir, monolithic=monolithic, scheme=scheme,
-                               acceleration=acceleration, comm=comm, verbose=verbose, figures=False,
-                               fields=False, gamma2=gamma2)
-            rows.append({param: value, **_row(summary)})
+            name = run_name(param, value)
+            try:
+                summary = run_case(params, os.path.join(tmp, "runs", name), monolithic=monolithic, scheme=scheme,
+                                   acceleration=acceleration, comm=comm, verbose=verbose, figures=False,
+                                   fields=False, gamma2=gamma2, shown_path=os.path.join(final, "runs", name))
+            except Exception as exc:  # noqa: BLE001  (one failed value must not discard the others)
+                if comm.rank == 0:
+                    if debug:
+                        traceback.print_exc()
+                    print(f"gelcell sweep: {name} failed: {message(exc)}", file=sys.stderr, flush=True)
+                failures.append((value, message(exc), exit_code(exc)))
+                rows.append({param: value, "status": "failed", "error": message(exc)})
+                continue
+            rows.append({param: value, "status": "ok", "error": "", **_row(summary)})
         write_json_file(os.path.join(tmp, "sweep.json"), rows, comm)
         if comm.rank == 0:
             with open(os.path.join(tmp, "sweep.csv"), "w", newline="") as f:
-                w = csv.DictWriter(f, fieldnames=list(rows[0]))
+                w = csv.DictWriter(f, fieldnames=list(dict.fromkeys(k for r in rows for k in r)), restval="")
                 w.writeheader()
                 w.writerows(rows)
-            _plot(os.path.join(tmp, "sweep.png"), rows, param, cases[0])
+            done = [r for r in rows if r["status"] == "ok"]
+            if done:
+                _plot(os.path.join(tmp, "sweep.png"), done, param, cases[0])
+    if comm.rank == 0:
+        print(f"gelcell sweep: wrote {final}: sweep.csv, sweep.json"
+              + (", sweep.png" if len(failures) < len(values) else "")
+              + f", runs/ ({len(values) - len(failures)} of {len(values)} values)", flush=True)
+    if failures:
+        raise SweepError(f"{len(failures)} of {len(values)} values failed ("
+                         + ", ".join(run_name(param, v) for v, _, _ in failures)
+                         + f"; why: the lines above and the error column of sweep.csv); the completed "
+                         f"runs are in {final}", failures)
     return rows
 
 

@@ -561,9 +561,9 @@ def run_transient_case(params: CaseParameters, settings: TimeSettings, out: str 
     import sys
 
     from femtools.io import atomic_directory
-    from gelcell.device import coupling_config
     from gelcell.output import DerivedFields, FieldSeries, write_json_file, write_profiles
-    from gelcell.runner import format_summary, report
+    from gelcell.runner import format_summary, partitioned_config, report
+    from gelcell.validity import model_warnings
 
     stream = stream or sys.stdout
     say = (lambda msg: print(msg, file=stream, flush=True)) if comm.rank == 0 else (lambda msg: None)
@@ -582,14 +582,14 @@ def run_transient_case(params: CaseParameters, settings: TimeSettings, out: str 
     if monolithic:
         backend = MonolithicBackend(params, comm, settings.scheme, settings.waveform)
     else:
-        device = Device(params, comm, gamma2=gamma2, transient=True, time_scheme=settings.scheme,
-                        inflow=settings.waveform)
         overrides = dict(method["coupling"])
-        config = coupling_config(scheme, acceleration, with_cell=params.with_cell, overrides=overrides)
+        config = partitioned_config(params, scheme, acceleration, overrides)
         if config["acceleration"]["type"] == "iqn-ils" and "time_windows_reused" not in \
                 dict(overrides.get("acceleration", {})):
             config["acceleration"]["time_windows_reused"] = 8
         config["verbose"] = False
+        device = Device(params, comm, gamma2=gamma2, transient=True, time_scheme=settings.scheme,
+                        inflow=settings.waveform)
         backend = PartitionedBackend(device, config, comm)
     setup_time = time.perf_counter() - t0
 
@@ -607,6 +607,14 @@ def run_transient_case(params: CaseParameters, settings: TimeSettings, out: str 
         summary = report(raw, params)
         summary["coupling"] = backend.describe()
         summary["transient"] = transient_summary(state, params, settings, plan)
+        if params.with_cell:
+            # the model's limits over the whole run, not only at its end (e.g. the peaks of a pulsatile inflow)
+            model = summary["model"]
+            model["max_cell_strain"] = max(r["cell_strain_max"] for r in state["rows"])
+            model["warnings"] = model_warnings(model)
+        if comm.rank == 0:
+            for warning in summary["model"]["warnings"]:
+                print(f"gelcell: warning: {warning}", file=sys.stderr, flush=True)
         summary["timing"] = {"setup": setup_time, "time_stepping": state["wall_time"]}
         t = summary["transient"]
         say(format_summary(summary))

@@ -44,6 +44,7 @@ def test_run_writes_every_promised_file(tmp_path):
         assert (out / name).is_file(), name
     s = json.loads((out / "summary.json").read_text())
     assert s["case"] == "shear" and s["cell"] is True and s["coupling"]["converged"]
+    assert s["model"]["warnings"] == [] and 0 < s["model"]["max_cell_strain"] < 1e-5
     assert json.loads((out / "summary_no_cell.json").read_text())["cell"] is False
     # the profiles: sorted along Gamma1 = the chord y = 0, x in [1, 3]; h5 and csv agree
     with h5py.File(out / "gamma1_profiles.h5") as h5:

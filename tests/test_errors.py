@@ -1,0 +1,173 @@
+"""Every expected failure ends with one line on stderr and its own exit code (issue 12 item 2).
+
+The command-line tests run gelcell as a subprocess (serial only); most of them
+fail before anything is meshed.  The mapping itself (gelcell.errors) is tested
+in-process.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+import types
+
+import pytest
+
+from coupling.errors import CouplingDivergedError, CouplingNotConvergedError
+from femtools.errors import NewtonError, OutputError, SingularSystemError
+from gelcell.errors import (EXIT_CODES, Interrupted, ModelLimitError, SweepError, exit_code, message,
+                            root_cause)
+from gelcell.parameters import ParameterError
+
+serial_cli = pytest.mark.skip_in_parallel
+
+
+def gelcell(*args, cwd=None):
+    env = dict(os.environ, MPLBACKEND="Agg")
+    return subprocess.run([sys.executable, "-m", "gelcell.cli", *args], capture_output=True, text=True,
+                          env=env, cwd=cwd, timeout=600)
+
+
+def error_line(proc, command: str) -> str:
+    """The one line on stderr (warnings aside), checked to be gelcell's error line."""
+    lines = [line for line in proc.stderr.splitlines() if line.strip()]
+    assert "Traceback" not in proc.stderr, proc.stderr
+    assert len(lines) == 1 and lines[0].startswith(f"gelcell {command}: error: "), proc.stderr
+    return lines[0]
+
+
+# ------------------------------------------------------------------ before meshing
+@serial_cli
+@pytest.mark.parametrize("args, code, words", [
+    (["run", "--config", "{typo}", "--out", "o"], 2, ["[coupling]", "max_iteratons", "max_iterations"]),
+    (["study", "--quick", "--max-iterations", "0", "--out", "o"], 2, ["--max-iterations", "at least 1"]),
+    (["sweep", "shear", "--param", "ca", "--values", "1e-9", "2e-9", "1e-9", "--out", "o"], 2,
+     ["ca=1e-09", "more than once"]),
+    (["run", "shear", "--ca", "1e300", "--out", "o"], 4, ["Ca = 1e+300", "cannot be represented", "1.5e-146"]),
+    (["run", "shear", "--ca", "1e-300", "--out", "o"], 4, ["Ca = 1e-300", "cannot be represented"]),
+    (["run", "shear", "--mesh-size", "1e-4", "--out", "o"], 4, ["elements", "GiB", "--mesh-size 0."]),
+    (["mesh", "normal", "--mesh-size", "1e-4", "--out", "o"], 4, ["elements", "GiB"]),
+], ids=["coupling-typo", "study-max-iterations", "sweep-duplicates", "ca-overflow", "ca-underflow",
+        "mesh-too-large", "mesh-command-too-large"])
+def test_refused_before_meshing(tmp_path, args, code, words):
+    typo = tmp_path / "typo.toml"
+    typo.write_text('[case]\nname = "shear"\n[coupling]\nmax_iteratons = 5\n')
+    proc = gelcell(*[a.format(typo=typo) for a in args], cwd=tmp_path)
+    assert proc.returncode == code, proc.stderr
+    line = error_line(proc, args[0])
+    for word in words:
+        assert word in line
+    assert proc.stdout == "" and not (tmp_path / "o").exists()
+
+
+@serial_cli
+def test_debug_adds_the_traceback(tmp_path):
+    proc = gelcell("--debug", "run", "shear", "--ca", "1e300", "--out", "o", cwd=tmp_path)
+    assert proc.returncode == 4
+    assert "Traceback" in proc.stderr and "ModelLimitError" in proc.stderr
+    assert proc.stderr.rstrip().splitlines()[-1].startswith("gelcell run: error: Ca = 1e+300")
+
+
+# ------------------------------------------------------------------ while solving
+@serial_cli
+@pytest.mark.parametrize("args, code, words", [
+    (["--config", "{diverging}", "--acceleration", "none"], 5,
+     ["coupling diverged", "Gamma2/force", "--acceleration iqn-ils"]),
+    (["--config", "{few}"], 6, ["did not converge in 3 iterations", "raise max_iterations"]),
+    (["--ca", "1e-3"], 8, ["gel: Newton's method failed", "lower Ca"]),
+], ids=["diverged", "not-converged", "newton"])
+def test_solver_failures(tmp_path, args, code, words):
+    cases = {"few": "max_iterations = 3", "diverging": "divergence_factor = 100"}   # stop early
+    for name, line in cases.items():
+        (tmp_path / f"{name}.toml").write_text(f'[case]\nname = "shear"\n[coupling]\n{line}\n')
+    args = [a.format(**{k: tmp_path / f"{k}.toml" for k in cases}) for a in args]
+    case = [] if "--config" in args else ["shear"]
+    proc = gelcell("run", *case, *args, "--mesh-size", "3", "--no-figures", "--quiet", "--out", "o",
+                   cwd=tmp_path)
+    assert proc.returncode == code, proc.stderr
+    line = error_line(proc, "run")
+    for word in words:
+        assert word in line
+    assert sorted(os.listdir(tmp_path)) == ["diverging.toml", "few.toml"]   # nothing written or left over
+
+
+@serial_cli
+def test_sweep_keeps_completed_runs(tmp_path):
+    """One failing value: the other is written, the failure reported, the exit status 9."""
+    out = tmp_path / "sweep"
+    proc = gelcell("sweep", "shear", "--no-cell", "--param", "ca", "--values", "3e-10", "1e-3",
+                   "--mesh-size", "6", "--quiet", "--out", str(out))
+    assert proc.returncode == 9, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert lines[0].startswith("gelcell sweep: ca=0.001 failed: gel: Newton's method failed")
+    assert lines[-1].startswith("gelcell sweep: error: 1 of 2 values failed (ca=0.001")
+    assert "Traceback" not in proc.stderr
+    rows = list(csv.DictReader(open(out / "sweep.csv")))
+    assert [(r["ca"], r["status"]) for r in rows] == [("3e-10", "ok"), ("0.001", "failed")]
+    assert "Newton" in rows[1]["error"] and rows[0]["converged"] == "True"
+    assert json.loads((out / "runs" / "ca=3e-10" / "summary.json").read_text())["coupling"]["converged"]
+    assert not (out / "runs" / "ca=0.001").exists()
+    # the paths printed are the final ones, never the temporary directory's
+    assert f"wrote {out}/runs/ca=3e-10:" in proc.stdout and f"wrote {out}:" in proc.stdout
+    assert ".tmp-" not in proc.stdout + proc.stderr
+
+
+# ------------------------------------------------------------------ the mapping
+def _diverged(growth: float, cause: BaseException | None) -> CouplingDivergedError:
+    records = [types.SimpleNamespace(residual_norms={"Gamma1/traction": 1.0}),
+               types.SimpleNamespace(residual_norms={"Gamma1/traction": growth})]
+    result = types.SimpleNamespace(windows=[types.SimpleNamespace(records=records)], iterations=2)
+    exc = CouplingDivergedError("coupling diverged in the steady solve: participant 'gel' failed in iteration 2 "
+                                "(...); residual norms of 'Gamma1/traction': [1, 2]", result)
+    exc.__cause__ = cause
+    return exc
+
+
+def test_every_expected_failure_has_its_own_exit_code():
+    codes = [code for _, code in EXIT_CODES]
+    assert len(set(codes)) == len(codes) and 0 not in codes and 1 not in codes
+    newton = NewtonError("cell", "the iterate contains NaN or Inf at iteration 3", [1.0, 2.0])
+    cases = [(ParameterError("bad\nworse"), 2), (OutputError("refused"), 3), (ModelLimitError("big"), 4),
+             (_diverged(1e5, newton), 5), (CouplingNotConvergedError("slow", None), 6),
+             (SingularSystemError("gel", 2), 7), (newton, 8), (SweepError("1 of 2", []), 9),
+             (Interrupted(15), 143), (Interrupted(2), 130), (KeyboardInterrupt(), 130),
+             (RuntimeError("a bug"), 1)]
+    for exc, code in cases:
+        assert exit_code(exc) == code, exc
+        text = message(exc)
+        assert "\n" not in text and text, exc
+    assert message(ParameterError("bad\nworse")) == "bad; worse"
+    assert "internal error: RuntimeError: a bug" in message(RuntimeError("a bug"))
+
+
+def test_a_participant_failure_is_reported_by_its_cause():
+    """Singular: always the cause.  Newton: the cause unless the coupling residual grew first."""
+    singular = SingularSystemError("gel", 1).add_hint("the network is not anchored")
+    assert root_cause(_diverged(1e5, singular)) is singular
+    assert exit_code(_diverged(1e5, singular)) == 7 and "not anchored" in message(_diverged(1e5, singular))
+    newton = NewtonError("gel", "the Jacobian became singular (8 null pivots) at the current iterate", [])
+    assert exit_code(_diverged(1.01, newton)) == 8
+    assert message(_diverged(1.01, newton)).startswith("gel: Newton's method failed")
+    grown = message(_diverged(1e5, newton))
+    assert exit_code(_diverged(1e5, newton)) == 5
+    assert "grew x1e+05" in grown and "gel solver failed" in grown and "--acceleration" in grown
+    assert "residual norms" not in message(_diverged(1e5, None))
+
+
+# ------------------------------------------------------------------ quiet output (item 7)
+@serial_cli
+@pytest.mark.parametrize("debug", [False, True])
+def test_compiler_lines_only_with_debug(tmp_path, debug):
+    """A form compiled on a cold cache: the C compiler's log lines appear only at debug level."""
+    script = (f"from gelcell.cli import configure_logging; configure_logging({debug})\n"
+              "from mpi4py import MPI; import ufl; from dolfinx import fem, mesh\n"
+              "m = mesh.create_unit_square(MPI.COMM_SELF, 1, 1); V = fem.FunctionSpace(m, ('Lagrange', 1))\n"
+              "fem.form(ufl.TrialFunction(V) * ufl.TestFunction(V) * ufl.dx)\n")
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300,
+                          env=dict(os.environ, XDG_CACHE_HOME=str(tmp_path)))     # nothing cached
+    assert proc.returncode == 0, proc.stderr
+    assert ("gcc" in proc.stderr) == debug, proc.stderr
+    assert ("INFO" in proc.stderr) == debug

@@ -1,0 +1,93 @@
+"""Singular systems stop with the field and its likely missing condition (issue 12 item 4).
+
+Every factorisation counts MUMPS's null pivots (INFOG(28)); the device's own
+systems have none (every device test runs through that check).  The fluid's
+pressure must be determined in each connected part of its mesh.  Serial and
+on 2 ranks.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mpi4py import MPI
+
+from cell import NeoHookeanCellSolver
+from cell import meshes
+from femtools.errors import SingularSystemError
+from femtools.mesh import connected_components
+from fluid import FluidInterface, StokesSolver
+from gel import GelParameters, PoroelasticGelSolver
+from gel.testing import BOTTOM, LEFT, RIGHT, TOP, rectangle
+from gelcell.boundaries import device_boundaries
+from gelcell.geometry import build_device
+from gelcell.parameters import CaseParameters
+
+
+def _column(**anchoring):
+    """A gel column pushed down by the fluid on top, its sides symmetry lines (u_x = 0)."""
+    msh, ft = rectangle(0.0, -1.0, 0.1, 0.0, 2, 8)
+    gel = PoroelasticGelSolver(msh, ft, GelParameters.viscous_units(), symmetry=[((LEFT, RIGHT), 0)],
+                               fluid_interfaces={"top": TOP}, **anchoring)
+    X = gel.interface_points("top")
+    gel.set_interface_data("top", traction=np.column_stack([0 * X[:, 0], -1.0 + 0 * X[:, 0]]),
+                           velocity=np.zeros_like(X))
+    return gel
+
+
+def test_unanchored_gel_network_is_refused():
+    """Nothing holds u_y: today MUMPS patched the null pivot and returned an arbitrary displacement."""
+    with pytest.raises(SingularSystemError, match=r"^gel: the linear system is singular .*not anchored") as info:
+        _column().solve()
+    assert info.value.null_pivots >= 1
+
+
+def test_anchored_gel_network_solves():
+    gel = _column(dirichlet=[(BOTTOM, "u", 0.0)])
+    gel.solve()
+    assert gel.newton.stats["factorizations"] >= 1
+
+
+def test_cell_free_to_slide_is_refused():
+    """A quarter ring held only on the x axis (u_y = 0) can still translate along x."""
+    msh, ft = meshes.annulus(1.0, 2.0, 0.4, quarter=True)
+    cell = NeoHookeanCellSolver(msh, ft, mu=1.0, lmbda=1.0, symmetry=[(meshes.XAXIS, 1)],
+                                tractions=[(meshes.OUTER, np.array([0.0, -1e-6]))])
+    with pytest.raises(SingularSystemError, match=r"^cell: the linear system is singular .*not held"):
+        cell.solve()
+
+
+@pytest.fixture(scope="module")
+def normal_fluid():
+    dev = build_device(CaseParameters.default("normal", False).with_mesh_size(3), MPI.COMM_WORLD,
+                       regions=["fluid"], whole=False)
+    return dev.region("fluid")
+
+
+def _normal_fluid_solver(msh, ft, kind: str) -> StokesSolver:
+    b = device_boundaries("normal", False)
+    return StokesSolver(msh, ft, viscosity=1.0, velocity_bcs=b.fluid_velocity, component_bcs=b.fluid_component,
+                        interfaces={name: FluidInterface(tag, kind, kind)
+                                    for name, tag in b.fluid_interfaces.items()})
+
+
+def test_connected_fluid_parts():
+    assert connected_components(build_device(CaseParameters.default("shear", False).with_mesh_size(3),
+                                             MPI.COMM_WORLD, regions=["fluid"], whole=False)
+                                .region("fluid")[0])[1] == 1
+
+
+def test_pressure_is_checked_in_each_fluid_part(normal_fluid):
+    """Normal-flow device: the upstream part enclosed by inflow, symmetry lines and a Dirichlet Gamma1.
+
+    The downstream part has a free outlet, which used to let the whole mesh pass.
+    """
+    msh, ft = normal_fluid
+    labels, count = connected_components(msh)
+    assert count == 2 and set().union(*msh.comm.allgather(set(labels.tolist()))) == {0, 1}
+    _normal_fluid_solver(msh, ft, "robin")               # the device's own conditions: fine
+    with pytest.raises(ValueError, match=r"whole boundary of 1 of its 2 connected part") as info:
+        _normal_fluid_solver(msh, ft, "dirichlet")
+    x = float(str(info.value).split("near (")[1].split(",")[0])
+    assert -1.0 < x < 0.0                                # the upstream part, x in [-1, 0]
