@@ -151,6 +151,18 @@ class Participant(abc.ABC):
         """Restore a state returned by :meth:`save_state` (copying from it)."""
         raise NotImplementedError(f"participant {self.name!r} does not implement load_state()")
 
+    def checkpoint_state(self) -> Any:
+        """The state to write into a checkpoint file (default: :meth:`save_state`).
+
+        Override it when :meth:`save_state` is tied to this process (e.g. the
+        local arrays of a mesh partition that differs in the next run).
+        """
+        return self.save_state()
+
+    def load_checkpoint_state(self, state: Any) -> None:
+        """Restore a state returned by :meth:`checkpoint_state` (default: :meth:`load_state`)."""
+        self.load_state(state)
+
     def advance(self, t: float, dt: float) -> None:
         """Prepare the time window ``[t, t + dt]``; called before each solve of the window.
 

@@ -648,7 +648,7 @@ class CouplingScheme:
         Saved: time and window index, the current value of every data, the
         acceleration's complete state (columns, past windows, relaxation,
         preconditioner weights, inverse Jacobian) and, if
-        ``include_participants``, each participant's ``save_state()`` on every
+        ``include_participants``, each participant's ``checkpoint_state()`` on every
         rank (states must consist of numpy arrays, numbers, strings, lists,
         tuples and dicts; participants raising ``NotImplementedError`` are skipped),
         and ``extra``, the application's own state (same types; each rank's
@@ -660,7 +660,7 @@ class CouplingScheme:
         if include_participants:
             for name in self.order:
                 try:
-                    state = self.participants[name].save_state()
+                    state = self.participants[name].checkpoint_state()
                 except NotImplementedError:
                     state = None
                 participant_states[name] = self.comm.gather(state, root=0)
@@ -724,7 +724,7 @@ class CouplingScheme:
                 if name not in self.participants:
                     raise ValueError(f"{path}: checkpoint has a state of unknown participant {name!r}")
                 if per_rank is not None and per_rank[rank] is not None:
-                    self.participants[name].load_state(per_rank[rank])
+                    self.participants[name].load_checkpoint_state(per_rank[rank])
         extra = state.get("extra")
         if extra is None:
             return None

@@ -19,25 +19,48 @@ from dolfinx import cpp as _cpp
 from dolfinx.io import gmshio
 from dolfinx.mesh import create_mesh, meshtags_from_entities
 
-__all__ = ["model_to_mesh", "model_to_region_mesh", "connected_components"]
+__all__ = ["model_to_mesh", "model_to_region_mesh", "connected_components", "PARTITIONER"]
 
 
-def model_to_mesh(model, comm: MPI.Comm, rank: int = 0, gdim: int = 2):
-    """Whole gmsh model as one dolfinx mesh: ``(mesh, cell_tags, facet_tags)``."""
-    msh, cell_tags, facet_tags = gmshio.model_to_mesh(model, comm, rank, gdim=gdim)
-    cell_tags.name, facet_tags.name = "cell_tags", "facet_tags"
-    return msh, cell_tags, facet_tags
+def _band_partition(comm: MPI.Comm, nparts: int, graph, ghosting: bool):
+    """Cells in the reverse Cuthill-McKee order of the dual graph, cut into ``nparts`` equal bands.
 
-
-def model_to_region_mesh(model, comm: MPI.Comm, rank: int, region_tags: typing.Iterable[int],
-                         gdim: int = 2):
-    """Mesh of the cells of the physical surfaces ``region_tags`` only.
-
-    Returns ``(mesh, facet_tags)``.  The facet tags keep every tagged facet of
-    the gmsh model whose nodes all belong to the region, i.e. the region's own
-    boundaries and the interfaces it shares with its neighbours.
+    A deterministic graph partitioner: the same mesh always gets the same
+    partition (dolfinx 0.5.2's SCOTCH partitioner draws another one in every
+    process, which changes round-off from run to run).  With ``ghosting``,
+    each cell also lists the other parts that own a neighbour of it.
     """
-    region_tags = np.asarray(list(region_tags), dtype=np.int64)
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import reverse_cuthill_mckee
+    offsets, links = np.asarray(graph.offsets), np.asarray(graph.array)
+    n_local = graph.num_nodes
+    counts = comm.allgather(n_local)
+    start = int(sum(counts[:comm.rank]))
+    n = int(sum(counts))
+    rows = np.repeat(np.arange(n_local, dtype=np.int64) + start, np.diff(offsets))
+    rows, cols = np.hstack(comm.allgather(rows)), np.hstack(comm.allgather(links.astype(np.int64)))
+    adjacency = csr_matrix((np.ones(rows.size, dtype=np.int8), (rows, cols)), shape=(n, n))
+    order = reverse_cuthill_mckee(adjacency, symmetric_mode=True)
+    parts = np.empty(n, dtype=np.int32)
+    parts[order] = (np.arange(n, dtype=np.int64) * nparts // max(n, 1)).astype(np.int32)
+    mine = parts[start:start + n_local]
+    if not ghosting or nparts == 1:
+        return _cpp.graph.AdjacencyList_int32(mine.copy())
+    data, out_offsets = [], [0]
+    for i in range(n_local):
+        owner = int(mine[i])
+        others = sorted(set(parts[links[offsets[i]:offsets[i + 1]]].tolist()) - {owner})
+        data += [owner] + others
+        out_offsets.append(len(data))
+    return _cpp.graph.AdjacencyList_int32(np.asarray(data, dtype=np.int32), np.asarray(out_offsets, dtype=np.int32))
+
+
+#: the cell partitioner of every mesh built here (deterministic, see ``_band_partition``)
+PARTITIONER = _cpp.mesh.create_cell_partitioner(_band_partition)
+
+
+def _model_mesh(model, comm: MPI.Comm, rank: int, region_tags, gdim: int):
+    """Mesh of the cells with physical tags ``region_tags`` (all cells if None): (mesh, cell_tags, facet_tags)."""
     if comm.rank == rank:
         x = gmshio.extract_geometry(model)
         topo = gmshio.extract_topology_and_markers(model)
@@ -45,10 +68,12 @@ def model_to_region_mesh(model, comm: MPI.Comm, rank: int, region_tags: typing.I
         cell_id = max(topo, key=lambda k: info[k][1])
         tdim = info[cell_id][1]
         facet_ids = [k for k in topo if info[k][1] == tdim - 1]
-        in_region = np.isin(topo[cell_id]["cell_data"], region_tags)
-        cells = topo[cell_id]["topology"][in_region]
-        if cells.shape[0] == 0:
-            raise ValueError(f"the gmsh model has no cells with physical tags {region_tags.tolist()}")
+        cells, cvals = topo[cell_id]["topology"], topo[cell_id]["cell_data"].astype(np.int32)
+        if region_tags is not None:
+            keep = np.isin(cvals, region_tags)
+            cells, cvals = cells[keep], cvals[keep]
+            if cells.shape[0] == 0:
+                raise ValueError(f"the gmsh model has no cells with physical tags {region_tags.tolist()}")
         used = np.unique(cells)
         new = np.full(x.shape[0], -1, np.int64)
         new[used] = np.arange(used.size)
@@ -62,22 +87,45 @@ def model_to_region_mesh(model, comm: MPI.Comm, rank: int, region_tags: typing.I
         meta = comm.bcast((cell_id, cells.shape[1], facets.shape[1]), root=rank)
     else:
         cell_id, nn, nf = comm.bcast(None, root=rank)
-        cells, x = np.empty((0, nn), np.int64), np.empty((0, 3))
+        cells, cvals, x = np.empty((0, nn), np.int64), np.empty(0, np.int32), np.empty((0, 3))
         facets, fvals = np.empty((0, nf), np.int64), np.empty(0, np.int32)
         meta = (cell_id, nn, nf)
     cell_id, nn, nf = meta
     domain = gmshio.ufl_mesh(cell_id, gdim)
     ctype = _cpp.mesh.to_type(str(domain.ufl_cell()))
     cells = cells[:, gmshio.cell_perm_array(ctype, nn)]
-    msh = create_mesh(comm, cells, x[:, :gdim], domain)
+    msh = create_mesh(comm, cells, x[:, :gdim], domain, partitioner=PARTITIONER)
     tdim = msh.topology.dim
+
+    def tags(dim, entities_in, values_in, name):
+        entities, values = _cpp.io.distribute_entity_data(msh._mesh, dim, entities_in, values_in)
+        msh.topology.create_connectivity(dim, 0)
+        t = meshtags_from_entities(msh, dim, _cpp.graph.AdjacencyList_int32(entities), values.astype(np.int32))
+        t.name = name
+        return t
+
+    cell_tags = tags(tdim, cells, cvals, "cell_tags")
     ftype = _cpp.mesh.cell_entity_type(ctype, tdim - 1, 0)
     facets = facets[:, gmshio.cell_perm_array(ftype, nf)]
-    entities, values = _cpp.io.distribute_entity_data(msh._mesh, tdim - 1, facets, fvals)
     msh.topology.create_connectivity(tdim - 1, tdim)
-    facet_tags = meshtags_from_entities(msh, tdim - 1, _cpp.graph.AdjacencyList_int32(entities),
-                                        values.astype(np.int32))
-    facet_tags.name = "facet_tags"
+    facet_tags = tags(tdim - 1, facets, fvals, "facet_tags")
+    return msh, cell_tags, facet_tags
+
+
+def model_to_mesh(model, comm: MPI.Comm, rank: int = 0, gdim: int = 2):
+    """Whole gmsh model as one dolfinx mesh: ``(mesh, cell_tags, facet_tags)``."""
+    return _model_mesh(model, comm, rank, None, gdim)
+
+
+def model_to_region_mesh(model, comm: MPI.Comm, rank: int, region_tags: typing.Iterable[int],
+                         gdim: int = 2):
+    """Mesh of the cells of the physical surfaces ``region_tags`` only.
+
+    Returns ``(mesh, facet_tags)``.  The facet tags keep every tagged facet of
+    the gmsh model whose nodes all belong to the region, i.e. the region's own
+    boundaries and the interfaces it shares with its neighbours.
+    """
+    msh, _, facet_tags = _model_mesh(model, comm, rank, np.asarray(list(region_tags), dtype=np.int64), gdim)
     return msh, facet_tags
 
 

@@ -79,6 +79,7 @@ from dolfinx.fem import petsc as fem_petsc
 from femtools.functions import interpolate, quadrature_measure, von_mises
 from femtools.interface import InterfaceNodes
 from femtools.linalg import NewtonSolver, jacobian_at_rest
+from femtools.serialize import CanonicalOrder, MixedCanonical
 from femtools.solver import FieldSolver
 from femtools.timestepping import RateHistory
 from gel import forms
@@ -466,6 +467,31 @@ class PoroelasticGelSolver(FieldSolver):
         if self.transient:
             state.update(self.history.state())
         return state
+
+    def checkpoint_state(self) -> dict[str, np.ndarray]:
+        """The state in the partition-independent node order (``femtools.serialize``), same on every rank.
+
+        A run restarted on another partition (or rank count) reads it back
+        with :meth:`load_checkpoint_state`.
+        """
+        if not hasattr(self, "_canonical"):
+            self._canonical = MixedCanonical(self.W, FIELDS)
+            self._canonical_u = CanonicalOrder(self._sub[1][0])
+        state = {f"state_{k}": v for k, v in self._canonical.gather(self.state.x.array).items()}
+        if self.transient:
+            state.update(past_0=self._canonical_u.gather(self.history.past[0].x.array),
+                         past_1=self._canonical_u.gather(self.history.past[1].x.array),
+                         length=np.array(self.history.length))
+        return state
+
+    def load_checkpoint_state(self, state: typing.Mapping[str, np.ndarray]) -> None:
+        """Restore a state written by :meth:`checkpoint_state` (any partition)."""
+        self.checkpoint_state()          # builds the canonical orders
+        self._canonical.scatter({k: state[f"state_{k}"] for k in FIELDS}, self.state.x.array)
+        if self.transient:
+            local = {f"past_{k}": self._canonical_u.scatter(state[f"past_{k}"]) for k in (0, 1)}
+            self.history.load({**local, "length": state["length"]})
+            self._update_velocity()
 
     def set_state(self, state: typing.Mapping[str, np.ndarray]) -> None:
         """Restore a state returned by ``get_state`` on this rank (copies from it)."""

@@ -254,7 +254,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         from gelcell.runner import partitioned_config
         from gelcell.transient import run_transient_case
         if not args.monolithic:
-            partitioned_config(params, args.scheme, args.acceleration)
+            partitioned_config(params, args.scheme, args.acceleration, transient=True)
         _check_before_meshing([params], args.out, partial=True)
         run_transient_case(params, settings, args.out, monolithic=args.monolithic, scheme=args.scheme,
                            acceleration=args.acceleration, comm=MPI.COMM_WORLD, figures=not args.no_figures,

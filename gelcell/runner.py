@@ -53,13 +53,13 @@ def monolithic_coefficients(params: CaseParameters) -> MonolithicCoefficients:
 
 
 def partitioned_config(params: CaseParameters, scheme: str = "serial", acceleration: str = "iqn-ils",
-                       coupling: typing.Mapping | None = None) -> dict:
+                       coupling: typing.Mapping | None = None, transient: bool = False) -> dict:
     """The ``[coupling]`` table of a partitioned run (defaults < the case's < ``coupling``), validated.
 
     Raises :class:`ParameterError` naming the bad key or value, before anything is meshed.
     """
     config = coupling_config(scheme, acceleration, with_cell=params.with_cell,
-                             overrides=dict(coupling or params.coupling or {}))
+                             overrides=dict(coupling or params.coupling or {}), transient=transient)
     try:
         cp.load_config(config)
     except ValueError as exc:

@@ -34,7 +34,7 @@ from mpi4py import MPI
 
 import coupling as cp
 from coupling.serialization import load_npz, save_npz
-from femtools.functions import owned_values
+from femtools.serialize import CanonicalOrder, MixedCanonical
 from femtools.timestepping import WindowClock
 from femtools.transfer import NodalTransfer
 from gelcell.boundaries import device_boundaries
@@ -172,12 +172,22 @@ class MonolithicBackend:
         self.solver.set_state(snapshot["state"])
         self.clock.load(snapshot["times"])
 
+    def _canonical(self):
+        if not hasattr(self, "_orders"):
+            from gelcell.monolithic import FIELDS
+            self._orders = (MixedCanonical(self.solver.W, FIELDS),
+                            CanonicalOrder(self.solver.history.past[0].function_space))
+        return self._orders
+
     def save(self, path: str, extra) -> None:
-        snaps = self.comm.gather(self.snapshot(), root=0)
-        extras = self.comm.gather(extra, root=0)
+        """Partition-independent arrays (``femtools.serialize``) and the run's own state (rank 0's)."""
+        mixed, order_u = self._canonical()
+        history = self.solver.history
+        state = {"format": "gelcell-monolithic-checkpoint", "fields": mixed.gather(self.solver.w.x.array),
+                 "past": [order_u.gather(f.x.array) for f in history.past], "length": history.length,
+                 "times": self.clock.state(), "extra": extra}
         if self.comm.rank == 0:
-            save_npz(f"{path}.tmp", {"format": "gelcell-monolithic-checkpoint", "ranks": self.comm.size,
-                                     "snapshots": snaps, "extra": extras})
+            save_npz(f"{path}.tmp", state)
             os.replace(f"{path}.tmp", path)
         self.comm.Barrier()
 
@@ -185,10 +195,12 @@ class MonolithicBackend:
         state = load_npz(path)
         if state.get("format") != "gelcell-monolithic-checkpoint":
             raise ParameterError(f"{path}: not a checkpoint of a monolithic time-dependent run")
-        if int(state["ranks"]) != self.comm.size:
-            raise ParameterError(f"{path}: written on {state['ranks']} rank(s), resumed on {self.comm.size}")
-        self.restore(state["snapshots"][self.comm.rank])
-        return state["extra"][self.comm.rank]
+        mixed, order_u = self._canonical()
+        mixed.scatter(state["fields"], self.solver.w.x.array)
+        self.solver.history.load({"past_0": order_u.scatter(state["past"][0]),
+                                  "past_1": order_u.scatter(state["past"][1]), "length": state["length"]})
+        self.clock.load(state["times"])
+        return state["extra"]
 
     def write_records(self, directory: str) -> None:
         pass
@@ -199,6 +211,7 @@ class MonolithicBackend:
 
 # ----------------------------------------------------------------------------- the run
 def _global_max_abs(values: np.ndarray, comm: MPI.Comm) -> float:
+    """max |values| (the arrays are replicated; the reduction keeps every rank on the same number)."""
     local = float(np.max(np.abs(values))) if values.size else 0.0
     return comm.allreduce(local, op=MPI.MAX)
 
@@ -252,7 +265,10 @@ class TransientRun:
         return row
 
     def _u(self) -> np.ndarray:
-        return owned_values(self.backend.fields.displacement).ravel().copy()
+        """The gel's displacement in the partition-independent order (the same on every rank)."""
+        if not hasattr(self, "_u_order"):
+            self._u_order = CanonicalOrder(self.backend.fields.displacement.function_space)
+        return self._u_order.gather(self.backend.fields.displacement.x.array).ravel()
 
     def _error(self, u: np.ndarray, dt: float) -> float | None:
         """The estimated relative local error of the step just taken (None if not enough history)."""
@@ -404,22 +420,33 @@ def _frame_functions(fields: DeviceFields) -> dict:
     return out
 
 
+_ORDERS: dict = {}
+
+
+def _order(f) -> CanonicalOrder:
+    key = id(f.function_space)
+    if key not in _ORDERS:
+        _ORDERS[key] = (f.function_space, CanonicalOrder(f.function_space))
+    return _ORDERS[key][1]
+
+
 def write_frame(directory: str, index: int, fields: DeviceFields, comm: MPI.Comm) -> None:
-    """This rank's arrays of every field, ``frame_{index:05d}_r{rank}.npz`` (written whole)."""
+    """Every field in the partition-independent order, ``frame_{index:05d}.npz`` (rank 0, written whole)."""
+    arrays = {k: _order(f).gather(f.x.array) for k, f in _frame_functions(fields).items()}
     if comm.rank == 0:
         os.makedirs(directory, exist_ok=True)
+        path = os.path.join(directory, f"frame_{index:05d}.npz")
+        with open(path + ".tmp", "wb") as fh:
+            np.savez(fh, **arrays)
+        os.replace(path + ".tmp", path)
     comm.Barrier()
-    path = os.path.join(directory, f"frame_{index:05d}_r{comm.rank}.npz")
-    with open(path + ".tmp", "wb") as fh:
-        np.savez(fh, **{k: f.x.array for k, f in _frame_functions(fields).items()})
-    os.replace(path + ".tmp", path)
 
 
 def read_frame(directory: str, index: int, fields: DeviceFields, comm: MPI.Comm) -> None:
-    """Load a frame written by :func:`write_frame` into ``fields`` (same partition)."""
-    with np.load(os.path.join(directory, f"frame_{index:05d}_r{comm.rank}.npz")) as data:
+    """Load a frame written by :func:`write_frame` into ``fields`` (any partition)."""
+    with np.load(os.path.join(directory, f"frame_{index:05d}.npz")) as data:
         for key, f in _frame_functions(fields).items():
-            f.x.array[:] = data[key]
+            f.x.array[:] = _order(f).scatter(data[key])
 
 
 # ----------------------------------------------------------------------------- summary
@@ -583,10 +610,7 @@ def run_transient_case(params: CaseParameters, settings: TimeSettings, out: str 
         backend = MonolithicBackend(params, comm, settings.scheme, settings.waveform)
     else:
         overrides = dict(method["coupling"])
-        config = partitioned_config(params, scheme, acceleration, overrides)
-        if config["acceleration"]["type"] == "iqn-ils" and "time_windows_reused" not in \
-                dict(overrides.get("acceleration", {})):
-            config["acceleration"]["time_windows_reused"] = 8
+        config = partitioned_config(params, scheme, acceleration, overrides, transient=True)
         config["verbose"] = False
         device = Device(params, comm, gamma2=gamma2, transient=True, time_scheme=settings.scheme,
                         inflow=settings.waveform)

@@ -33,9 +33,9 @@ def read_series(directory):
         return {c: h5[c][()] for c in COLUMNS}
 
 
-def assert_same_series(a, b, rtol):
-    assert a["t"].shape == b["t"].shape
-    for c in COLUMNS:
+def assert_same_series(a, b, rtol, columns=COLUMNS):
+    assert a["t"].shape == b["t"].shape, (a["t"], b["t"])
+    for c in columns:
         scale = np.nanmax(np.abs(b[c])) if np.any(np.isfinite(b[c])) else 0.0
         np.testing.assert_allclose(a[c], b[c], rtol=0, atol=rtol * max(scale, 1e-300), err_msg=c)
 
@@ -87,7 +87,12 @@ def test_interrupted_run_resumes_to_the_same_result(shared_tmp_path, settings, m
 
     Adaptive BDF2: the checkpoint carries the coupling's quasi-Newton columns,
     the extrapolation history, the gel's displacement history and the step
-    controller's state.
+    controller's state.  In serial the resumed run repeats the uninterrupted
+    one bit for bit.  Under MPI two uninterrupted runs already differ by
+    ~2e-11 (MUMPS's parallel factorisation schedules its work dynamically, so
+    its round-off changes from run to run; measured), and a window's iteration
+    count can then differ by one: there the quantities are compared to 1e-9,
+    the bound that the coupling tolerance (1e-10 per window) implies.
     """
     reference = str(shared_tmp_path / "reference")
     run_transient_case(case("shear"), settings, reference, comm=COMM, figures=False, fields=False)
@@ -112,7 +117,11 @@ def test_interrupted_run_resumes_to_the_same_result(shared_tmp_path, settings, m
     run_transient_case(case("shear"), settings, out, comm=COMM, figures=False, fields=False, resume=True)
     if COMM.rank == 0:
         assert not os.path.exists(out + ".partial")
-        assert_same_series(read_series(out), read_series(reference), 1e-12)
+        if COMM.size == 1:
+            assert_same_series(read_series(out), read_series(reference), 1e-12)
+        else:
+            physical = [c for c in COLUMNS if c not in ("iterations", "residual")]
+            assert_same_series(read_series(out), read_series(reference), 1e-9, physical)
 
 
 # --------------------------------------------------------------------------- the command line

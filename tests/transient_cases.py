@@ -28,9 +28,7 @@ def backend(params: CaseParameters, settings: TimeSettings, monolithic: bool = F
     if monolithic:
         return MonolithicBackend(params, comm, settings.scheme, settings.waveform)
     device = Device(params, comm, transient=True, time_scheme=settings.scheme, inflow=settings.waveform)
-    config = coupling_config(acceleration=acceleration, with_cell=params.with_cell)
-    if acceleration == "iqn-ils":
-        config["acceleration"]["time_windows_reused"] = 8
+    config = coupling_config(acceleration=acceleration, with_cell=params.with_cell, transient=True)
     config.update(verbose=False, **coupling)
     return PartitionedBackend(device, config, comm)
 

@@ -12,7 +12,7 @@ params = CaseParameters.default("shear").with_mesh_size(3.0)
 tau = time_scales(params)["consolidation"]
 settings = TimeSettings(transient=True, dt=tau / 20, t_end=4 * tau / 20, scheme="bdf2")
 device = Device(params, MPI.COMM_WORLD, transient=True, time_scheme="bdf2", inflow=settings.waveform)
-config = coupling_config(with_cell=True)
+config = coupling_config(with_cell=True, transient=True)
 config["verbose"] = False
 state = TransientRun(PartitionedBackend(device, config, MPI.COMM_WORLD), params, settings, MPI.COMM_WORLD).run()
 if MPI.COMM_WORLD.rank == 0:
