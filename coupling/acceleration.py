@@ -375,7 +375,7 @@ class AitkenRelaxation(Acceleration):
         self.previous_residual: np.ndarray | None = None
 
     def _bounded(self, omega: float) -> float:
-        sign = -1.0 if omega < 0.0 else 1.0
+        sign = -1.0 if (omega < 0.0 and not self.config.positive_relaxation) else 1.0
         magnitude = min(max(abs(omega), self.config.omega_min), self.config.omega_max)
         return sign * magnitude
 

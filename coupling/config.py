@@ -61,7 +61,7 @@ ON_MAX_ITERATIONS = ("raise", "return", "continue")
 ACCELERATION_OPTIONS: dict[str, tuple[str, ...]] = {
     "none": ("type",),
     "constant": ("type", "relaxation"),
-    "aitken": ("type", "initial_relaxation", "omega_min", "omega_max", "preconditioner"),
+    "aitken": ("type", "initial_relaxation", "omega_min", "omega_max", "positive_relaxation", "preconditioner"),
     "iqn-ils": ("type", "initial_relaxation", "enforce_initial_relaxation", "max_used_iterations",
                 "time_windows_reused", "filter", "preconditioner"),
     "iqn-imvj": ("type", "initial_relaxation", "enforce_initial_relaxation", "max_used_iterations",
@@ -254,6 +254,10 @@ class AccelerationConfig:
             fallback relaxation of IQN when no column is usable.
         omega_min: Lower bound of |ω| for Aitken (sign kept).
         omega_max: Upper bound of |ω| for Aitken (``inf``: unbounded).
+        positive_relaxation: Aitken: use |ω|.  Right when the fixed-point
+            map's eigenvalues are real and below 1 (the overshoot of a
+            Dirichlet–Neumann-type split): the secant estimate of a non-normal
+            map can flip the sign of ω there, and the iteration then stalls.
         max_used_iterations: IQN: maximum number of kept columns (all windows).
         time_windows_reused: IQN-ILS: number of past windows whose columns are kept.
         enforce_initial_relaxation: IQN: relax (instead of a quasi-Newton step
@@ -267,6 +271,7 @@ class AccelerationConfig:
     initial_relaxation: float = 0.5
     omega_min: float = 0.0
     omega_max: float = math.inf
+    positive_relaxation: bool = False
     max_used_iterations: int = 50
     time_windows_reused: int = 0
     enforce_initial_relaxation: bool = False
@@ -285,6 +290,7 @@ class AccelerationConfig:
             raise ValueError(f"{where}.omega_min = {lo} must be <= omega_max = {hi}")
         object.__setattr__(self, "omega_min", lo)
         object.__setattr__(self, "omega_max", hi)
+        _boolean(where, "positive_relaxation", self.positive_relaxation)
         _integer(where, "max_used_iterations", self.max_used_iterations, minimum=1)
         _integer(where, "time_windows_reused", self.time_windows_reused, minimum=0)
         _boolean(where, "enforce_initial_relaxation", self.enforce_initial_relaxation)

@@ -144,6 +144,10 @@ def coupling_config(scheme: str = "serial", acceleration: str = "iqn-ils", *, li
     elif acceleration == "aitken":
         # per-data scaling by the residual sums keeps one omega fair to every data
         acc.update(initial_relaxation=0.5, preconditioner={"type": "residual-sum"})
+        if transient:
+            # a window's map has real eigenvalues below 0 down to ~-12 at small dt (docs/transient.md):
+            # omega must stay positive, which the secant estimate of this non-normal map does not ensure
+            acc["positive_relaxation"] = True
     elif acceleration in ("iqn-ils", "iqn-imvj"):
         # value scaling: fixed per-data weights, so the kept secant columns stay consistent
         # (residual-sum weights drift each iteration; on stiff cells IQN-ILS then stalls at ~1e-9)

@@ -271,3 +271,30 @@ def test_accelerations_converge_where_plain_iteration_diverges(scheme_name):
     assert outcomes["none"] == "diverged"
     assert all(isinstance(outcomes[k], int) for k in ("constant", "aitken", "iqn-ils", "iqn-imvj")), outcomes
     assert outcomes["iqn-ils"] <= 2 * 8 + 3  # parallel: x has 2n = 16 entries
+
+
+def test_positive_aitken_on_a_non_normal_map_with_negative_eigenvalues():
+    """Real eigenvalues in [-12, -0.05] (a Dirichlet-Neumann-type overshoot) of a non-normal map.
+
+    Every constant 0 < ω < 2/13 contracts, but the secant estimate of ω,
+    a Rayleigh quotient of the non-normal map, turns negative and Aitken
+    never converges; with ``positive_relaxation`` (|ω|) it converges to
+    rounding.  This is the coupling map of a short time window of the device
+    (docs/transient.md).
+    """
+    rng = np.random.default_rng(0)
+    n = 12
+    s = np.eye(n) + np.triu(3.0 * rng.standard_normal((n, n)), 1)
+    a = s @ np.diag(-np.geomspace(0.05, 12.0, n)) @ np.linalg.inv(s)
+    b = rng.standard_normal(n)
+    x_star = np.linalg.solve(np.eye(n) - a, b)
+    outcome = {}
+    for positive in (False, True):
+        acc = make("aitken", n, initial_relaxation=0.1, positive_relaxation=positive)
+        x, omegas = np.zeros(n), []
+        for _ in range(400):
+            x = acc.compute(x, a @ x + b)
+            omegas.append(acc.info.relaxation)
+        outcome[positive] = (np.linalg.norm(x - x_star) / np.linalg.norm(x_star), min(omegas))
+    assert outcome[False][1] < 0 and outcome[False][0] > 1e-3, outcome
+    assert outcome[True][1] > 0 and outcome[True][0] < 1e3 * EPS * np.linalg.cond(np.eye(n) - a), outcome
