@@ -71,12 +71,12 @@ def main() -> None:
     for label, r in rows.items():
         if label == "steady":
             continue
-        after = r["iterations_mean_after_5"]
-        print(f"{label:24s} {r['windows']:7d} {r['windows_to_t99'] or '-':>7} {r['rejected']:8d} "
-              f"{r['iterations_mean']:9.2f} {after if after is None else f'{after:.2f}':>8} "
-              f"{r['wall_time']:9.1f} {r['wall_time'] / base:8.1f} "
-              f"{'-' if mono is None else f'{r['wall_time'] / mono:.2f}':>7} "
-              f"{r['t99_s'] if r['t99_s'] is None else f'{r['t99_s']:.3e}':>10}")
+        after = "-" if r["iterations_mean_after_5"] is None else f"{r['iterations_mean_after_5']:.2f}"
+        to_mono = "-" if mono is None else f"{r['wall_time'] / mono:.2f}"
+        t99 = "-" if r["t99_s"] is None else f"{r['t99_s']:.3e}"
+        print(f"{label:24s} {r['windows']:7d} {str(r['windows_to_t99'] or '-'):>7s} {r['rejected']:8d} "
+              f"{r['iterations_mean']:9.2f} {after:>8s} {r['wall_time']:9.1f} {r['wall_time'] / base:8.1f} "
+              f"{to_mono:>7s} {t99:>10s}")
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(rows, fh, indent=2)

@@ -192,7 +192,7 @@ def _add_solver_arguments(p: argparse.ArgumentParser) -> None:
                    help="coupling scheme: serial (Gauss-Seidel: fluid, gel, cell) or parallel (Jacobi), implicit; "
                         "serial-explicit / parallel-explicit: one exchange per time window (time-dependent "
                         "runs, for comparison)")
-    g.add_argument("--acceleration", choices=ACCELERATIONS, default="iqn-ils",
+    g.add_argument("--acceleration", choices=ACCELERATIONS, default=None,
                    help="coupling acceleration (default iqn-ils)")
     g.add_argument("--gamma2", choices=("dirichlet", "robin"), default="dirichlet",
                    help="the cell's condition on Gamma2: the gel's displacement (Dirichlet-Neumann, default) "
@@ -453,6 +453,9 @@ def main(argv: typing.Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     args.argv = None if argv is None else list(argv)
+    if getattr(args, "scheme", None) is not None and getattr(args, "acceleration", "unset") is None:
+        # explicit schemes exchange once per window: nothing to accelerate
+        args.acceleration = "none" if args.scheme.endswith("explicit") else "iqn-ils"
     configure_logging(args.debug)
     if not getattr(args, "func", None):
         parser.print_help()
