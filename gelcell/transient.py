@@ -14,8 +14,12 @@ linear for backward Euler, LTE ~ dt/(2 dt + dt_prev) |u - u_pred|, quadratic
 for BDF2, LTE ~ (2/11) |u - u_pred| (its constant-step factor).  Normalised
 by the largest |u| seen so far it must stay below ``time_tol``; a larger one
 rejects the window (everything, including the quasi-Newton state, is restored)
-and retries with a smaller dt.  The next dt is
-dt (0.9 (tol/err)^(1/(p+1))), limited to [0.2, 2] dt.
+and retries with dt (0.9 (tol/err)^(1/(p+1))), at least 0.2 dt.  An accepted
+step keeps dt unless that factor allows twice the step, which it then takes:
+a piecewise-constant dt lets the windows share one interface operator, so
+the quasi-Newton columns of past windows stay valid and each field keeps
+its factorisation (a dt that changed in every window cost 2.4x the
+iterations per window and a refactorisation each; docs/transient.md).
 
 Steady state: the relative change of the gel's displacement per consolidation
 time, max|u^{n+1} - u^n| / max|u^{n+1}| * tau_c / dt, below ``steady_tol``.
@@ -210,10 +214,9 @@ class MonolithicBackend:
 
 
 # ----------------------------------------------------------------------------- the run
-def _global_max_abs(values: np.ndarray, comm: MPI.Comm) -> float:
-    """max |values| (the arrays are replicated; the reduction keeps every rank on the same number)."""
-    local = float(np.max(np.abs(values))) if values.size else 0.0
-    return comm.allreduce(local, op=MPI.MAX)
+def _max_abs(values: np.ndarray) -> float:
+    """max |values| of a replicated array (canonical order: the same number on every rank)."""
+    return float(np.max(np.abs(values))) if values.size else 0.0
 
 
 class TransientRun:
@@ -238,7 +241,7 @@ class TransientRun:
         self.quantities = DeviceQuantities(backend.fields)
         self.state = {"t": 0.0, "windows": 0, "dt_next": self.plan["dt"], "rows": [], "frames": [],
                       "past": [], "past_times": [], "u_scale": 0.0, "rejected": 0, "wall_time": 0.0,
-                      "steady": False, "window_rows": []}
+                      "steady": False}
 
     # -- checkpoint --------------------------------------------------------------
     @property
@@ -289,29 +292,27 @@ class TransientRun:
             factor = dt / (2 * dt + dt_prev)
         else:
             return None
-        scale = max(self.state["u_scale"], _global_max_abs(u, self.comm))
+        scale = max(self.state["u_scale"], _max_abs(u))
         if scale == 0.0:
             return 0.0
-        return factor * _global_max_abs(u - prediction, self.comm) / scale
+        return factor * _max_abs(u - prediction) / scale
 
     def _steady_measure(self, u: np.ndarray, dt: float) -> float:
         past = self.state["past"]
-        scale = _global_max_abs(u, self.comm)
+        scale = _max_abs(u)
         if not past or scale == 0.0:
             return math.inf
-        return _global_max_abs(u - past[-1], self.comm) / scale * self.tau / dt
+        return _max_abs(u - past[-1]) / scale * self.tau / dt
 
     def _accept(self, t_new: float, dt: float, outcome: WindowOutcome, u: np.ndarray) -> None:
         st = self.state
         keep = 3 if self.settings.scheme == "bdf2" else 2
         st["past"] = (st["past"] + [u])[-keep:]
         st["past_times"] = (st["past_times"] + [t_new])[-keep:]
-        st["u_scale"] = max(st["u_scale"], _global_max_abs(u, self.comm))
+        st["u_scale"] = max(st["u_scale"], _max_abs(u))
         st["t"] = t_new
         st["windows"] += 1
         st["rows"].append(self._row(t_new, outcome.iterations, outcome.residual))
-        st["window_rows"].append({"window": st["windows"], "t": t_new, "dt": dt,
-                                  "iterations": outcome.iterations, "residual": outcome.residual})
 
     # -- frames ----------------------------------------------------------------------
     def _frame(self, force: bool = False) -> None:
@@ -380,8 +381,17 @@ class TransientRun:
                     self.say(f"window {st['windows'] + 1:4d}  t = {t:.4e}  dt = {dt:.3e} rejected: error "
                              f"{err:.2e} > time_tol {settings.time_tol:.1e}")
                     continue
-                factor = 2.0 if not err else min(2.0, max(0.2, 0.9 * (settings.time_tol / err) ** (1.0 / (p + 1))))
-                st["dt_next"] = min(dt * factor, self.plan["dt_max"])
+                # dt changes in steps: it doubles when the error allows twice the step and is kept
+                # otherwise, so that windows share one interface operator (quasi-Newton columns of
+                # past windows stay valid) and one factorisation of each field's Jacobian
+                factor = 2.0 if not err else 0.9 * (settings.time_tol / err) ** (1.0 / (p + 1))
+                if dt >= st["dt_next"] * (1 - 1e-12):     # not a step shortened to land on t_end or a kink
+                    nominal = st["dt_next"]
+                    if factor >= 2.0:
+                        nominal *= 2.0
+                    elif factor < 1.0:
+                        nominal *= max(factor, 0.2)
+                    st["dt_next"] = min(nominal, self.plan["dt_max"])
             steady = self._steady_measure(u, dt)
             self._accept(t + dt, dt, outcome, u)
             st["steady"] = bool(steady < settings.steady_tol and self._inflow_constant(st["t"]))
