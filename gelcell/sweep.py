@@ -131,8 +131,8 @@ def run_sweep(cases: list[CaseParameters], param: str, values: list[float], out:
             row = {param: value, "status": "ok", "error": "", "kinematics": params.kinematics,
                    **_row(summaries[0])}
             if other:
-                row.update({f"{other}.{k}": v for k, v in _row(summaries[1]).items()
-                            if k in dict(SWEEP_QUANTITIES) or k == "iterations"})
+                names = {n for n, _, _ in SWEEP_QUANTITIES} | {"iterations"}
+                row.update({f"{other}.{k}": v for k, v in _row(summaries[1]).items() if k in names})
                 by_path = {params.kinematics: _row(summaries[0]), other: _row(summaries[1])}
                 row["departure"] = departure(by_path["small"], by_path["finite"])
             rows.append(row)

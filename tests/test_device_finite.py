@@ -16,6 +16,8 @@
 
 from __future__ import annotations
 
+import csv
+import os
 import subprocess
 import sys
 
@@ -161,3 +163,22 @@ def test_cli_kinematics_option(tmp_path):
     assert proc.returncode == 2, proc.stderr
     assert "'kinematics' = 'large'" in proc.stderr and "gelcell run: error:" in proc.stderr
     assert not out.exists()
+
+
+@pytest.mark.skip_in_parallel
+def test_sweep_beyond_linearity(tmp_path):
+    """``gelcell sweep --param ca --compare-kinematics``: linearity.png and the departure of the small-strain
+    path, which the neglected terms make first order in the strain: it grows in proportion to Ca
+    (x1e4 from Ca = 3e-10 to 3e-6, within a factor 2) and is below 1e-5 at Table 1 loads."""
+    out = tmp_path / "sweep"
+    proc = subprocess.run([sys.executable, "-m", "gelcell.cli", "sweep", "shear", "--param", "ca", "--values",
+                           "3e-10", "3e-6", "--mesh-size", "3", "--monolithic", "--compare-kinematics", "--quiet",
+                           "--out", str(out)], capture_output=True, text=True, timeout=600,
+                          env=dict(os.environ, MPLBACKEND="Agg"))
+    assert proc.returncode == 0, proc.stderr
+    rows = list(csv.DictReader(open(out / "sweep.csv")))
+    departure = [float(r["departure"]) for r in rows]
+    print(f"sweep departures {departure}")
+    assert (out / "linearity.png").is_file() and (out / "runs" / "ca=3e-06-small" / "summary.json").is_file()
+    assert departure[0] < 1e-5
+    assert 0.5e4 < departure[1] / departure[0] < 2e4, departure
