@@ -156,13 +156,15 @@ def _relative(terms: dict, free: np.ndarray) -> dict[str, float]:
     return out
 
 
-def _fluid_interface_residuals(fields: DeviceFields, name: str, tag: int) -> dict[str, float]:
-    if fields.params.kinematics == "finite":
-        return _finite_fluid_interface_residuals(fields, name, tag)
+def _interface_reactions(fields: DeviceFields, name: str, tag: int) -> dict:
+    """The reactions at the interface nodes and what each check needs besides (forms of the case's kinematics).
+
+    ``t_fluid`` the Stokes residual (force ON the fluid), ``F_load``/``G_load`` the gel's fluid-phase and
+    mixture residuals, ``V_on_gel`` the fluid velocity on the gel's nodes, ``proj`` the trace projection
+    with the end nodes excluded.
+    """
     p = fields.params
-    s = p.stress_scale
-    ph = p.physics
-    visc, eta, beta = ph.ca / s, ph.eta, ph.beta
+    visc = p.physics.ca / p.stress_scale
     c = fields.gel_coefficients()
     V_f, P_f = fields.fluid_velocity, fields.fluid_pressure
     v_f, u, pp = fields.interstitial_velocity, fields.displacement, fields.pore_pressure
@@ -171,25 +173,44 @@ def _fluid_interface_residuals(fields: DeviceFields, name: str, tag: int) -> dic
     Vfl = V_f.function_space
     dxf = ufl.Measure("dx", domain=Vfl.mesh, metadata={"quadrature_degree": 4})
     vt = ufl.TestFunction(Vfl)
-    R_fluid = _reaction(fluid_forms.bulk_residual(V_f, P_f, vt, 0, visc, dxf), Vfl)
+    if p.kinematics == "finite":
+        d = fem.Constant(Vfl.mesh, p.displacement_scale)
+        fluid_form = ale_bulk_residual(V_f, P_f, vt, 0, visc, fields.fluid_mesh_displacement, d, dxf)
+    else:
+        fluid_form = fluid_forms.bulk_residual(V_f, P_f, vt, 0, visc, dxf)
     fluid_nodes = InterfaceNodes(Vfl, fields.fluid_tags, tag)
-    t_fluid = fluid_nodes.from_array(R_fluid.array)
+    t_fluid = fluid_nodes.from_array(_reaction(fluid_form, Vfl).array)
     Vg = v_f.function_space
     dxg = ufl.Measure("dx", domain=gm, metadata={"quadrature_degree": 4})
     w = ufl.TestFunction(Vg)
-    R_w = _reaction(gel_forms.fluid_phase_residual(v_f, u, pp, w, c, dxg), Vg)
-    R_m = _reaction(gel_forms.mixture_residual(v_f, u, pp, w, c, dxg), Vg)
+    forms = fields.gel_forms
+    R_w = _reaction(forms.fluid_phase_residual(v_f, u, pp, w, c, dxg), Vg)
+    R_m = _reaction(forms.mixture_residual(v_f, u, pp, w, c, dxg), Vg)
     gel_nodes = InterfaceNodes(Vg, fields.gel_tags, tag)
     if not np.allclose(gel_nodes.points, fluid_nodes.points, rtol=0, atol=1e-10):
         raise RuntimeError(f"{name}: fluid and gel interface nodes differ")
-    F_f_load, T_gel_load = gel_nodes.from_array(R_w.array), gel_nodes.from_array(R_m.array)
     # the fluid velocity on the gel's interface nodes
     V_on_gel = fem.Function(Vg)
     gel_nodes.to_function(fluid_nodes.from_function(V_f), V_on_gel)
     Q = fem.FunctionSpace(gm, ("Lagrange", 2))
     others = [int(t) for t in Tag if int(t) != tag and int(t) >= 10]
     ends = np.vstack([_points_on(Vfl, fields.fluid_tags, others), _points_on(Vg, fields.gel_tags, others)])
-    proj = _TraceProjection(Q, fields.gel_tags, tag, ends)
+    return dict(c=c, t_fluid=t_fluid, F_load=gel_nodes.from_array(R_w.array), G_load=gel_nodes.from_array(R_m.array),
+                V_on_gel=V_on_gel, gel_nodes=gel_nodes, Q=Q, Vg=Vg, Vfl=Vfl,
+                proj=_TraceProjection(Q, fields.gel_tags, tag, ends))
+
+
+def _fluid_interface_residuals(fields: DeviceFields, name: str, tag: int) -> dict[str, float]:
+    if fields.params.kinematics == "finite":
+        return _finite_fluid_interface_residuals(fields, name, tag)
+    p = fields.params
+    s = p.stress_scale
+    ph = p.physics
+    visc, eta, beta = ph.ca / s, ph.eta, ph.beta
+    v_f, u = fields.interstitial_velocity, fields.displacement
+    r = _interface_reactions(fields, name, tag)
+    c, t_fluid, F_f_load, T_gel_load = r["c"], r["t_fluid"], r["F_load"], r["G_load"]
+    V_on_gel, gel_nodes, proj, Vg = r["V_on_gel"], r["gel_nodes"], r["proj"], r["Vg"]
     free = proj.free
     # the fluid's traction on the gel as the field the gel was given (ends pinned to 0)
     T = fem.Function(Vg)
@@ -220,32 +241,11 @@ def _finite_fluid_interface_residuals(fields: DeviceFields, name: str, tag: int)
     s, d = p.stress_scale, p.displacement_scale
     ph = p.physics
     visc, eta, beta = ph.ca / s, ph.eta, ph.beta
-    c = fields.gel_coefficients()
-    V_f, P_f = fields.fluid_velocity, fields.fluid_pressure
-    v_f, u, pp = fields.interstitial_velocity, fields.displacement, fields.pore_pressure
+    v_f, u = fields.interstitial_velocity, fields.displacement
     gm = fields.gel_mesh
-    Vfl = V_f.function_space
-    fm = Vfl.mesh
-    dxf = ufl.Measure("dx", domain=fm, metadata={"quadrature_degree": 4})
-    R_fluid = _reaction(ale_bulk_residual(V_f, P_f, ufl.TestFunction(Vfl), 0, visc, fields.fluid_mesh_displacement,
-                                          fem.Constant(fm, d), dxf), Vfl)
-    fluid_nodes = InterfaceNodes(Vfl, fields.fluid_tags, tag)
-    t_fluid = fluid_nodes.from_array(R_fluid.array)
-    Vg = v_f.function_space
-    dxg = ufl.Measure("dx", domain=gm, metadata={"quadrature_degree": 4})
-    w = ufl.TestFunction(Vg)
-    R_w = _reaction(gel_lagrangian.fluid_phase_residual(v_f, u, pp, w, c, dxg), Vg)
-    R_m = _reaction(gel_lagrangian.mixture_residual(v_f, u, pp, w, c, dxg), Vg)
-    gel_nodes = InterfaceNodes(Vg, fields.gel_tags, tag)
-    if not np.allclose(gel_nodes.points, fluid_nodes.points, rtol=0, atol=1e-10):
-        raise RuntimeError(f"{name}: fluid and gel interface nodes differ")
-    F_load, G_load = gel_nodes.from_array(R_w.array), gel_nodes.from_array(R_m.array)
-    V_on_gel = fem.Function(Vg)
-    gel_nodes.to_function(fluid_nodes.from_function(V_f), V_on_gel)
-    Q = fem.FunctionSpace(gm, ("Lagrange", 2))
-    others = [int(t) for t in Tag if int(t) != tag and int(t) >= 10]
-    ends = np.vstack([_points_on(Vfl, fields.fluid_tags, others), _points_on(Vg, fields.gel_tags, others)])
-    proj = _TraceProjection(Q, fields.gel_tags, tag, ends)
+    r = _interface_reactions(fields, name, tag)
+    c, t_fluid, F_load, G_load = r["c"], r["t_fluid"], r["F_load"], r["G_load"]
+    V_on_gel, gel_nodes, proj, Vg, Vfl, Q = (r[k] for k in ("V_on_gel", "gel_nodes", "proj", "Vg", "Vfl", "Q"))
     free = proj.free
     # the fluid's traction on the gel as the fluid recovers it: a component is pinned (zero) only at the
     # nodes where another boundary fixes that velocity component (fluid.solver)

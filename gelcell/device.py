@@ -232,13 +232,15 @@ class FluidParticipant(cp.Participant):
         if self.inflow is not None:
             self.solver.scale_boundary_velocity(self.inflow(t + dt))
 
+    def _set_inputs(self, g: str, inputs) -> None:
+        T_G = inputs[f"{g}/gel_traction"]
+        q = inputs[f"{g}/mixture_velocity"]
+        v_f = inputs[f"{g}/interstitial_velocity"]
+        self.solver.set_interface_data(g, robin_normal=-T_G + self.alpha_n * q, robin_tangential=self.alpha_t * v_f)
+
     def solve(self, inputs):
         for g in self.interfaces:
-            T_G = inputs[f"{g}/gel_traction"]
-            q = inputs[f"{g}/mixture_velocity"]
-            v_f = inputs[f"{g}/interstitial_velocity"]
-            self.solver.set_interface_data(g, robin_normal=-T_G + self.alpha_n * q,
-                                           robin_tangential=self.alpha_t * v_f)
+            self._set_inputs(g, inputs)
         self.solver.solve()
         out = {}
         for g in self.interfaces:
@@ -274,19 +276,11 @@ class MovingFluidParticipant(FluidParticipant):
     def load_checkpoint_state(self, state) -> None:
         self.solver.load_checkpoint_state(state)
 
-    def solve(self, inputs):
-        for g in self.interfaces:
-            self.solver.set_interface_data(g, robin_normal=-inputs[f"{g}/gel_traction"],
-                                           robin_tangential=self.alpha_t * inputs[f"{g}/interstitial_velocity"],
-                                           normal_flux=inputs[f"{g}/normal_flux"],
-                                           displacement=inputs[f"{g}/displacement"])
-        self.solver.solve()
-        out = {}
-        for g in self.interfaces:
-            d = self.solver.interface_data(g)
-            out[f"{g}/traction"] = -d["traction"]
-            out[f"{g}/velocity"] = d["velocity"]
-        return out
+    def _set_inputs(self, g: str, inputs) -> None:
+        self.solver.set_interface_data(g, robin_normal=-inputs[f"{g}/gel_traction"],
+                                       robin_tangential=self.alpha_t * inputs[f"{g}/interstitial_velocity"],
+                                       normal_flux=inputs[f"{g}/normal_flux"],
+                                       displacement=inputs[f"{g}/displacement"])
 
 
 class GelParticipant(cp.Participant):

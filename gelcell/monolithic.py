@@ -183,12 +183,10 @@ class MonolithicSolver:
         return chi
 
     def _residual(self, degree: int):
-        if self.finite:
-            return self._finite_residual(degree)
         msh = self.mesh
         c = self._constants()
-        V, P, rel, u, p, lam = ufl.split(self.w)
-        v, q, w, z, q_g, mu = ufl.TestFunctions(self.W)
+        V, P, rel, u, p, lam = ufl.split(self.w)[:6]
+        v, q, w, z, q_g, mu = ufl.TestFunctions(self.W)[:6]
         v_s = None if self.history is None else self.history.rate
         v_f = rel if v_s is None else rel + v_s
         dx = quadrature_measure("dx", msh, self.cell_tags, degree)
@@ -199,64 +197,48 @@ class MonolithicSolver:
         def gel_side(expr):
             return chi("+") * expr("+") + chi("-") * expr("-")
 
-        F = fluid_forms.bulk_residual(V, P, v, q, c.viscosity, dx(int(Tag.FLUID)))
-        F += gel_forms.bulk_residual(v_f, u, p, w, z, q_g, c, dx(int(Tag.GEL)), v_s=v_s)
+        alpha_t = c.viscosity / c.beta
+        if self.finite:
+            F, interface = self._finite_terms(c, v_f, v_s, u, p, dx, n)
+        else:
+            F = fluid_forms.bulk_residual(V, P, v, q, c.viscosity, dx(int(Tag.FLUID)))
+            F += gel_forms.bulk_residual(v_f, u, p, w, z, q_g, c, dx(int(Tag.GEL)), v_s=v_s)
+            flux = gel_forms.mixture_flux(v_f, u, c, v_s)
+            tangential = lambda a: a - ufl.dot(a, n) * n  # noqa: E731
+            interface = (gel_forms.fluid_interface_residual(v_f, u, w, z, lam, V, n, c, 1, v_s)
+                         + (ufl.dot(V, n) - ufl.dot(flux, n)) * ufl.dot(mu, n)
+                         + ufl.dot(tangential(lam - alpha_t * (V - v_f)), tangential(mu)))
         if self.has_cell:
             mu_c, lambda_c, d, s = self.cell_moduli
             F += cell_forms.residual(u, z, mu_c, lambda_c, d, s, dx(int(Tag.CELL)))
-        flux = gel_forms.mixture_flux(v_f, u, c, v_s)
-        alpha_t = c.viscosity / c.beta
-        tangential = lambda a: a - ufl.dot(a, n) * n  # noqa: E731
-        interface = (ufl.dot(lam, v)
-                     + gel_forms.fluid_interface_residual(v_f, u, w, z, lam, V, n, c, 1, v_s)
-                     + (ufl.dot(V, n) - ufl.dot(flux, n)) * ufl.dot(mu, n)
-                     + ufl.dot(tangential(lam - alpha_t * (V - v_f)), tangential(mu))
-                     # a zero multiplier "mass": diagonal entries for the rows pinned at the interface ends
-                     + fem.Constant(msh, 0.0) * ufl.dot(lam, mu))
+        # the fluid's load from the multiplier, and a zero multiplier "mass": diagonal entries for
+        # the rows pinned at the interface ends
+        interface += ufl.dot(lam, v) + fem.Constant(msh, 0.0) * ufl.dot(lam, mu)
         for tag in self.boundaries.fluid_interfaces.values():
             F += gel_side(interface) * dS(tag)
         return F
 
-    def _finite_residual(self, degree: int):
-        """The residual with finite kinematics (module docstring)."""
-        msh = self.mesh
-        c = self._constants()
-        d = c.d
-        V, P, rel, u, p, lam, u_m = ufl.split(self.w)
+    def _finite_terms(self, c, v_f, v_s, u, p, dx, N):
+        """Finite kinematics: the bulk residual and the interface integrand (module docstring)."""
+        msh, d = self.mesh, c.d
+        V, P, rel, _, _, lam, u_m = ufl.split(self.w)
         v, q, w, z, q_g, mu, z_m = ufl.TestFunctions(self.W)
-        v_s = None if self.history is None else self.history.rate
-        v_f = rel if v_s is None else rel + v_s
         dJdt = None if self.history is None else gel_lagrangian.volume_rate(
             u, self.history.past, self.history.constants, d)
-        dx = quadrature_measure("dx", msh, self.cell_tags, degree)
-        dS = quadrature_measure("dS", msh, self.facet_tags, degree)
-        N = ufl.FacetNormal(msh)
-        chi = self._gel_indicator()
-
-        def gel_side(expr):
-            return chi("+") * expr("+") + chi("-") * expr("-")
-
         fluid_motion = u + u_m
         dx_fluid = dx(int(Tag.FLUID))
         F = ale_bulk_residual(V, P, v, q, c.viscosity, fluid_motion, d, dx_fluid)
         F += harmonic_residual(fluid_motion, z_m, dx_fluid)
         F += gel_lagrangian.bulk_residual(v_f, u, p, w, z, q_g, c, dx(int(Tag.GEL)), v_s=v_s, dJdt=dJdt)
-        if self.has_cell:
-            mu_c, lambda_c, d_c, s = self.cell_moduli
-            F += cell_forms.residual(u, z, mu_c, lambda_c, d_c, s, dx(int(Tag.CELL)))
         j, n = surface_stretch(u, d, N)
         flux = gel_lagrangian.mixture_flux(v_f, u, c, v_s)
         alpha_t = c.viscosity / c.beta
         weight = fem.Constant(msh, float(self.coefficients.interface_weight or 1.0))
         tangential = lambda a: a - ufl.dot(a, n) * n  # noqa: E731
-        interface = (ufl.dot(lam, v)
-                     + gel_lagrangian.fluid_interface_residual(v_f, u, w, z, lam, V, N, c, 1, v_s)
+        interface = (gel_lagrangian.fluid_interface_residual(v_f, u, w, z, lam, V, N, c, 1, v_s)
                      + weight * j * (ufl.dot(V, n) - ufl.dot(flux, n)) * ufl.dot(mu, n)
-                     - ufl.dot(tangential(lam - alpha_t * j * (V - v_f)), tangential(mu))
-                     + fem.Constant(msh, 0.0) * ufl.dot(lam, mu))
-        for tag in self.boundaries.fluid_interfaces.values():
-            F += gel_side(interface) * dS(tag)
-        return F
+                     - ufl.dot(tangential(lam - alpha_t * j * (V - v_f)), tangential(mu)))
+        return F, interface
 
     # -- boundary conditions -------------------------------------------------
     def _sub(self, i: int, comp: int | None = None):

@@ -178,30 +178,31 @@ MAX_DISPLACEMENT_GRADIENT = 0.05
 MAX_CELL_STRAIN = 0.05
 
 
+def _exceeds(value, limit) -> bool:
+    return value is not None and not value <= limit
+
+
 def model_warnings(model: dict) -> list[str]:
     """Warnings for a solved case whose ``model`` block (of summary.json) exceeds the thresholds.
 
     ``model["kinematics"]`` selects the path (missing: ``"small"``).
     """
-    out = []
     finite = model.get("kinematics", "small") == "finite"
-    grad = model.get("max_displacement_gradient")
-    strain = model.get("max_cell_strain")
+    grad, strain = model.get("max_displacement_gradient"), model.get("max_cell_strain")
+    grad_limit = MAX_DISPLACEMENT_GRADIENT if finite else MAX_NEGLECTED
     if finite:
-        if grad is not None and not grad <= MAX_DISPLACEMENT_GRADIENT:
-            out.append(f"the gel's largest displacement gradient is {grad:.3g} (> {MAX_DISPLACEMENT_GRADIENT:g}): "
-                       f"the finite-strain model holds, but its neo-Hookean network with the Table 1 constants "
-                       f"(measured at small strain) is extrapolated; lower Ca (--ca) or the load if that matters")
-        if strain is not None and not strain <= MAX_CELL_STRAIN:
-            out.append(f"the cell's largest von Mises Green-Lagrange strain is {strain:.3g} (> {MAX_CELL_STRAIN:g}): "
-                       f"its neo-Hookean law is extrapolated beyond the small strains its moduli describe")
-        return out
-    if grad is not None and not grad <= MAX_NEGLECTED:
-        out.append(f"the gel's largest displacement gradient is {grad:.3g} (> {MAX_NEGLECTED:g}): "
-                   f"the small-strain path (--kinematics small) neglects geometric terms of this relative size; "
-                   f"use --kinematics finite, or lower Ca (--ca) or the load")
-    if strain is not None and not strain <= MAX_CELL_STRAIN:
+        grad_why = ("the finite-strain model holds, but its neo-Hookean network with the Table 1 constants "
+                    "(measured at small strain) is extrapolated; lower Ca (--ca) or the load if that matters")
+        strain_why = "its neo-Hookean law is extrapolated beyond the small strains its moduli describe"
+    else:
+        grad_why = ("the small-strain path (--kinematics small) neglects geometric terms of this relative size; "
+                    "use --kinematics finite, or lower Ca (--ca) or the load")
+        strain_why = ("the gel that loads it is modelled in small deformation; use --kinematics finite, or lower "
+                      "Ca (--ca) or the load")
+    out = []
+    if _exceeds(grad, grad_limit):
+        out.append(f"the gel's largest displacement gradient is {grad:.3g} (> {grad_limit:g}): {grad_why}")
+    if _exceeds(strain, MAX_CELL_STRAIN):
         out.append(f"the cell's largest von Mises Green-Lagrange strain is {strain:.3g} (> {MAX_CELL_STRAIN:g}): "
-                   f"the gel that loads it is modelled in small deformation; use --kinematics finite, or lower "
-                   f"Ca (--ca) or the load")
+                   f"{strain_why}")
     return out

@@ -29,22 +29,13 @@ import ufl
 from dolfinx import fem
 
 from femtools.errors import NewtonError
-from femtools.functions import integrate
 from femtools.interface import InterfaceNodes
 from gel.parameters import GelParameters
 from gel.solver import PoroelasticGelSolver
 from gel.testing import BOTTOM, LEFT, RIGHT, TOP, rectangle
+from test_gel import l2 as norm_l2, rates
 
 COMM = MPI.COMM_WORLD
-
-
-def rates(h, err):
-    return float(np.polyfit(np.log(h), np.log(err), 1)[0])
-
-
-def norm_l2(expr, msh, degree=8):
-    dx = ufl.Measure("dx", domain=msh, metadata={"quadrature_degree": degree})
-    return np.sqrt(integrate(ufl.inner(expr, expr), dx))
 
 
 def nodal(gel, name, field):
