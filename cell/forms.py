@@ -15,40 +15,27 @@ theta = tr G + d det G (so J = 1 + d theta) and cof F = I + d (tr G I - G^T):
     P / s = (d/s) { mu_c [G + G^T + d (det G I + theta G)] / J + lambda_c theta cof F }
 
 free of cancellation however small d is (d = s = Ca in the device runs).
+The kinematics and the neo-Hookean stresses are ``femtools.continuum``'s,
+shared with the gel's network.
 """
 
 from __future__ import annotations
 
 import ufl
 
+from femtools.continuum import green_lagrange, kinematics, neo_hookean_cauchy, neo_hookean_piola
+
 __all__ = ["kinematics", "first_piola", "cauchy_stress", "green_lagrange", "residual"]
 
 
-def kinematics(u, d):
-    """``(G, theta, J)`` with G = grad u_hat, theta = (J - 1)/d, J = det(I + d G)."""
-    G = ufl.grad(u)
-    theta = ufl.tr(G) + d * ufl.det(G)
-    return G, theta, 1 + d * theta
-
-
 def first_piola(u, mu, lmbda, d, s):
-    """Scaled first Piola-Kirchhoff stress P / s."""
-    G, theta, J = kinematics(u, d)
-    I = ufl.Identity(len(u))
-    cof = I + d * (ufl.tr(G) * I - G.T)
-    return (d / s) * (mu * (G + G.T + d * (ufl.det(G) * I + theta * G)) / J + lmbda * theta * cof)
+    """Scaled first Piola-Kirchhoff stress P / s (``femtools.continuum.neo_hookean_piola``)."""
+    return (d / s) * neo_hookean_piola(u, mu, lmbda, d)
 
 
 def cauchy_stress(u, mu, lmbda, d, s):
     """Scaled Cauchy stress sigma_c / s = (d/s) [mu (G + G^T + d G G^T) / J + lambda theta I]."""
-    G, theta, J = kinematics(u, d)
-    return (d / s) * (mu * (G + G.T + d * G * G.T) / J + lmbda * theta * ufl.Identity(len(u)))
-
-
-def green_lagrange(u, d):
-    """Green-Lagrange strain E = (F^T F - I)/2 of u = d u_hat (in absolute units)."""
-    H = d * ufl.grad(u)
-    return 0.5 * (H + H.T + H.T * H)
+    return (d / s) * neo_hookean_cauchy(u, mu, lmbda, d)
 
 
 def residual(u, v, mu, lmbda, d, s, dx):

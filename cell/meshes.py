@@ -6,7 +6,8 @@ unless ``order=1``.  Facet tags are the module constants below.
 
 * ``annulus(a, b, h)``: the ring a < r < b, full or a quarter (x, y > 0);
 * ``disk(radius, h)``: a disk, full or its upper half (y > 0);
-* ``block(length, height, n)``: a rectangle on a distorted triangle mesh.
+* ``block(length, height, n)``: a rectangle on a distorted triangle mesh;
+* ``rectangle(length, height, h)``: a rectangle meshed by gmsh (P2 geometry by default).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from dolfinx import mesh as dmesh
 from femtools.mesh import model_to_mesh
 
 __all__ = ["INNER", "OUTER", "XAXIS", "YAXIS", "BOUNDARY", "FLAT",
-           "LEFT", "RIGHT", "BOTTOM", "TOP", "annulus", "disk", "block"]
+           "LEFT", "RIGHT", "BOTTOM", "TOP", "annulus", "disk", "block", "rectangle"]
 
 #: annulus: inner circle r = a, outer circle r = b, quarter edges on y = 0 and x = 0
 INNER, OUTER, XAXIS, YAXIS = 1, 2, 3, 4
@@ -131,6 +132,26 @@ def disk(radius: float, h: float, centre=(0.0, 0.0), half: bool = False, order: 
         def curves(model):
             return _classify(model, lambda x, y, length:
                              FLAT if half and abs(y - cy) < 1e-12 * (1 + abs(cy)) else BOUNDARY)
+        return surfaces, curves
+
+    return _generate(comm, build, h, order)
+
+
+def rectangle(length: float, height: float, h: float, order: int = 2, comm: MPI.Comm = MPI.COMM_WORLD):
+    """``[0, length] x [0, height]`` meshed by gmsh with size ``h``; tags LEFT, RIGHT, BOTTOM, TOP."""
+    _check_positive(length=length, height=height, h=h)
+
+    def build(occ):
+        surfaces = [occ.addRectangle(0, 0, 0, length, height)]
+
+        def curves(model):
+            def rule(x, y, _):
+                if abs(x) < 1e-12 * length:
+                    return LEFT
+                if abs(x - length) < 1e-12 * length:
+                    return RIGHT
+                return BOTTOM if abs(y) < 1e-12 * height else TOP
+            return _classify(model, rule)
         return surfaces, curves
 
     return _generate(comm, build, h, order)

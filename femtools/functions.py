@@ -9,6 +9,8 @@ from mpi4py import MPI
 import ufl
 from dolfinx import fem
 
+from femtools import continuum
+
 __all__ = ["integrate", "owned_values", "global_max", "interpolate", "von_mises",
            "green_lagrange", "quadrature_measure"]
 
@@ -47,8 +49,7 @@ def von_mises(s):
 
 def green_lagrange(u, scale=1.0):
     """E = (F^T F - I)/2 of the displacement ``scale*u``, written without cancellation."""
-    H = scale * ufl.grad(u)
-    return 0.5 * (H + H.T + H.T * H)
+    return continuum.green_lagrange(u, scale)
 
 
 def quadrature_measure(kind: str, msh, subdomain_data=None, degree: int = 4):

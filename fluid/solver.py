@@ -272,16 +272,13 @@ class StokesSolver(FieldSolver):
         self.body_force = self._body_force(body_force)
 
         # -- Stokes forms ---------------------------------------------------------
-        u, p = ufl.TrialFunctions(self.W)
+        trial = ufl.TrialFunction(self.W)
+        u, p = ufl.split(trial)
         v, q = ufl.TestFunctions(self.W)
         n = ufl.FacetNormal(mesh)
-        F = forms.bulk_residual(u, p, v, q, self.mu, self.dx, self.body_force)
+        F = self._bulk_residual(u, p, v, q)
         for it in self._ifaces.values():
             F += self._robin_terms(it, u, v, n)
-        a, L = ufl.lhs(F), ufl.rhs(F)
-        # keep L a non-empty form when there is neither a body force nor Robin data
-        zero = fem.Constant(mesh, PETSc.ScalarType((0.0, 0.0)))
-        L = L + ufl.inner(zero, v) * self.dx
 
         # -- Dirichlet conditions (interfaces first: outer boundaries win) ---------
         self._constrained = [np.empty(0, np.int32), np.empty(0, np.int32)]   # V dofs per component
@@ -300,7 +297,7 @@ class StokesSolver(FieldSolver):
         else:
             self._check_pressure_determined()
         self.bcs = bcs
-        self._solver = LinearSolver(a, L, self.w, bcs, name=name, petsc_options=petsc_options)
+        self._solver = self._build_solver(F, trial, v, bcs, petsc_options)
 
         # -- consistent traction: interface mass matrices -------------------------
         self._setup_traction_recovery()
@@ -308,8 +305,23 @@ class StokesSolver(FieldSolver):
         self.timing["setup"] += time.perf_counter() - t0
 
     # =========================================================================
-    # setup helpers
+    # setup helpers (the first three are overridden by fluid.ale.MovingStokesSolver)
     # =========================================================================
+    def _bulk_residual(self, u, p, v, q):
+        """The bulk Stokes residual (operator and traction recovery)."""
+        return forms.bulk_residual(u, p, v, q, self.mu, self.dx, self.body_force)
+
+    def _robin_residual(self, u, v, n, alpha_n, alpha_t, g_normal, g_tangential, ds):
+        return forms.robin_residual(u, v, n, alpha_n, alpha_t, g_normal, g_tangential, ds)
+
+    def _build_solver(self, F, trial, v, bcs, petsc_options):
+        """The linear solver of ``F`` (linear in ``trial``): assembled and factorised once."""
+        a, L = ufl.lhs(F), ufl.rhs(F)
+        # keep L a non-empty form when there is neither a body force nor Robin data
+        zero = fem.Constant(self.mesh, PETSc.ScalarType((0.0, 0.0)))
+        L = L + ufl.inner(zero, v) * self.dx
+        return LinearSolver(a, L, self.w, bcs, name=self.name, petsc_options=petsc_options)
+
     def _facets(self, tags: typing.Sequence[int]) -> np.ndarray:
         """Local facets carrying any of ``tags`` (sorted, unique)."""
         found = [self.facet_tags.find(int(t)) for t in tags]
@@ -365,7 +377,7 @@ class StokesSolver(FieldSolver):
         if spec.tangential == "robin":
             it.alpha_t = fem.Constant(self.mesh, PETSc.ScalarType(spec.alpha_t))
             it.g_tangential = fem.Function(self.V, name=f"{it.name}_robin_tangential")
-        return forms.robin_residual(
+        return self._robin_residual(
             u, v, n,
             it.alpha_n if it.alpha_n is not None else 0,
             it.alpha_t if it.alpha_t is not None else 0,
@@ -515,7 +527,7 @@ class StokesSolver(FieldSolver):
         lam, s = ufl.TrialFunction(V), ufl.TestFunction(V)
         u_h, p_h = ufl.split(self.w)
         # R(s): bulk residual with q = 0, i.e. the reaction without interface terms
-        self._reaction_form = forms.bulk_residual(u_h, p_h, s, 0, self.mu, self.dx, self.body_force)
+        self._reaction_form = self._bulk_residual(u_h, p_h, s, 0)
         n_local = (V.dofmap.index_map.size_local + V.dofmap.index_map.num_ghosts) * 2
         self._direction = fem.Constant(self.mesh, PETSc.ScalarType((1.0, 0.0)))
         for it in self._ifaces.values():

@@ -50,6 +50,8 @@ import dataclasses
 
 import ufl
 
+from femtools.continuum import kinematics, neo_hookean_cauchy
+
 __all__ = ["GelCoefficients", "kinematics", "solid_fraction", "network_stress",
            "fluid_stress", "total_stress", "relative_velocity", "mixture_flux", "fluid_phase_residual",
            "mixture_residual", "mass_residual", "bulk_residual", "fluid_interface_residual"]
@@ -80,23 +82,14 @@ class GelCoefficients:
     d: object
 
 
-def kinematics(u, d):
-    """``(G, theta, J)``: G = grad u_hat, theta = (J - 1)/d = tr G + d det G, J = det(I + d G)."""
-    G = ufl.grad(u)
-    theta = ufl.tr(G) + d * ufl.det(G)
-    return G, theta, 1 + d * theta
-
-
 def solid_fraction(u, c: GelCoefficients):
     """phi_s = phi_s0 / J."""
     return c.phi_s0 / kinematics(u, c.d)[2]
 
 
 def network_stress(u, c: GelCoefficients):
-    """Scaled Cauchy stress of the neo-Hookean network, sigma_s / s."""
-    G, theta, J = kinematics(u, c.d)
-    I = ufl.Identity(len(u))
-    return c.stiffness * ((G + G.T + c.d * G * G.T) / J + c.lambda_s * theta * I)
+    """Scaled Cauchy stress of the neo-Hookean network, sigma_s / s (``femtools.continuum``)."""
+    return c.stiffness * neo_hookean_cauchy(u, None, c.lambda_s, c.d)
 
 
 def fluid_stress(v_f, c: GelCoefficients):

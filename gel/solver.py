@@ -22,6 +22,16 @@ phi_s = phi_s0 / J and a neo-Hookean network.  Newton's method with the exact
 Jacobian (``femtools.linalg.NewtonSolver``, Jacobian kept across calls while
 it contracts, refactorised when dt changes).
 
+Kinematics (``kinematics=``): ``"small"`` poses those equations on the
+undeformed domain with gradients in X and the Cauchy stress in place of the
+first Piola stress (exact to the size of the strains, ~1e-6 at the device's
+loads); ``"finite"`` uses the total Lagrangian forms of ``gel.lagrangian``
+(first Piola stress of the total stress, spatial gradients of the fluid
+phase, Piola-transformed relative flux, interface terms on the current
+interface by Nanson's formula, dJ/dt in the mass balance; docs/finite-strain.md).
+Both linearise to the same operator at rest, so the kept Jacobian (and its
+factorisation) is the same matrix on both paths.
+
 Boundary conditions (n is the gel's outward normal everywhere):
 
 * ``no_slip`` tags: w = 0 and u = 0, i.e. v_f = v_s = 0 (the chamber bowl, the posts).
@@ -30,12 +40,15 @@ Boundary conditions (n is the gel's outward normal everywhere):
 * ``fluid_interfaces`` {name: tags} (Gamma1, Gamma3): the split of
   model.md section 6 as written in ``gel.forms.fluid_interface_residual``.
   Inputs (N, 2) each: ``traction`` T = (Sigma - P I) n, the fluid's traction
-  ON the gel (force per unit length, stress unit s), ``velocity`` V, the
+  ON the gel (force per unit length, stress unit s; with ``kinematics="finite"``
+  per unit REFERENCE length, the nominal traction), ``velocity`` V, the
   fluid velocity (units of V0).  Outputs: ``mixture_velocity``
   phi_f v_f + phi_s v_s (its normal component is the volume flux from the gel
   into the fluid, I13), ``superficial_velocity`` phi_f v_f,
   ``interstitial_velocity`` v_f, ``traction`` the total traction the gel
-  exerts there, (N, 2), and ``pressure`` p, (N, 1).
+  exerts there, (N, 2), and ``pressure`` p, (N, 1); finite kinematics add
+  ``normal_flux`` (the consistent nodal volume flux through the current
+  interface) and ``displacement`` (for the fluid's mesh motion).
 * ``cell_interfaces`` {name: tags} (Gamma2): w = 0, i.e. v_f = v_s (= v_c,
   since u_s = u_c there and both use the same time discretisation).  Input
   ``force`` (N, 2): NODAL forces ON the gel from the cell (entries of a
@@ -78,14 +91,18 @@ from dolfinx.fem import petsc as fem_petsc
 
 from femtools.functions import interpolate, quadrature_measure, von_mises
 from femtools.interface import InterfaceNodes
-from femtools.linalg import NewtonSolver, jacobian_at_rest
+from femtools.linalg import NewtonSolver, assemble_residual_vector, jacobian_at_rest
 from femtools.serialize import CanonicalOrder, MixedCanonical
 from femtools.solver import FieldSolver
 from femtools.timestepping import RateHistory
-from gel import forms
+from gel import forms, lagrangian
 from gel.parameters import GelParameters
 
-__all__ = ["PoroelasticGelSolver", "GelParameters"]
+__all__ = ["PoroelasticGelSolver", "GelParameters", "KINEMATICS"]
+
+#: ``"small"``: gel.forms (gradients in X, Cauchy stress as if it were the first Piola stress);
+#: ``"finite"``: gel.lagrangian (total Lagrangian, exact kinematics; docs/finite-strain.md)
+KINEMATICS = ("small", "finite")
 
 log = logging.getLogger(__name__)
 
@@ -145,6 +162,14 @@ class PoroelasticGelSolver(FieldSolver):
         transient: build the time-dependent forms (v_s from the displacement
             history, see the module docstring); the solver is steady until
             ``set_time_step`` is called.
+        kinematics: ``"small"`` (``gel.forms``: the equations on the
+            undeformed domain, exact to the size of the strains) or
+            ``"finite"`` (``gel.lagrangian``: total Lagrangian, every geometric
+            term kept; fluid interfaces then take the NOMINAL traction, force
+            per unit reference length, and also return ``normal_flux`` and
+            ``displacement``).
+        newton_reuse: ``"adaptive"`` (keep the factorised Jacobian at rest while
+            it contracts) or ``"never"`` (exact Newton, a factorisation per iteration).
 
     Example::
 
@@ -168,7 +193,7 @@ class PoroelasticGelSolver(FieldSolver):
                  tractions: typing.Iterable[tuple] = (),
                  body_forces=None, name: str = "gel", quadrature_degree: int = 4,
                  petsc_options: dict | None = None, newton_rtol: float = 1e-11,
-                 transient: bool = False):
+                 transient: bool = False, kinematics: str = "small", newton_reuse: str = "adaptive"):
         t0 = time.perf_counter()
         super().__init__()
         if not isinstance(params, GelParameters):
@@ -177,6 +202,10 @@ class PoroelasticGelSolver(FieldSolver):
             raise ValueError(f"quadrature_degree must be >= 1, got {quadrature_degree!r}")
         if not (0.0 < newton_rtol < 1.0):
             raise ValueError(f"newton_rtol must be in (0, 1), got {newton_rtol!r}")
+        if kinematics not in KINEMATICS:
+            raise ValueError(f"kinematics must be one of {KINEMATICS}, got {kinematics!r}")
+        self.kinematics = kinematics
+        self._forms = forms if kinematics == "small" else lagrangian
         self.name = name
         self.mesh = mesh
         self.facet_tags = facet_tags
@@ -203,7 +232,13 @@ class PoroelasticGelSolver(FieldSolver):
         rel, u, p = ufl.split(self.state)
         w, z, q = ufl.TestFunctions(self.W)
         v_f = rel + self.v_s if self.transient else rel
-        F = forms.bulk_residual(v_f, u, p, w, z, q, self.coefficients, self.dx, body_forces, self.v_s)
+        if self.kinematics == "small":
+            F = forms.bulk_residual(v_f, u, p, w, z, q, self.coefficients, self.dx, body_forces, self.v_s)
+        else:
+            dJdt = None if not self.transient else lagrangian.volume_rate(
+                u, self.history.past, self.history.constants, self.coefficients.d)
+            F = lagrangian.bulk_residual(v_f, u, p, w, z, q, self.coefficients, self.dx, body_forces,
+                                         self.v_s, dJdt)
         for iname, tags in fluid_interfaces.items():
             F += self._add_fluid_interface(iname, tags)
         for iname, tags in cell_interfaces.items():
@@ -216,7 +251,7 @@ class PoroelasticGelSolver(FieldSolver):
         # whenever it is needed, e.g. after a restart; the exact one takes over at large loads
         data = [d[k] for d in self._fluid.values() for k in ("T", "V")]
         data += list(self.history.past) if self.transient else []
-        self._newton = NewtonSolver(F, self.state, self.bcs, name=name, rtol=newton_rtol, reuse="adaptive",
+        self._newton = NewtonSolver(F, self.state, self.bcs, name=name, rtol=newton_rtol, reuse=newton_reuse,
                                     petsc_options=options, J_reference=jacobian_at_rest(F, self.state, data))
         self._build_postprocessing()
         self.timing["setup"] = time.perf_counter() - t0
@@ -278,8 +313,12 @@ class PoroelasticGelSolver(FieldSolver):
         rel, u, _ = ufl.split(self.state)
         w, z, _ = ufl.TestFunctions(self.W)
         v_f = rel + self.v_s if self.transient else rel
-        return forms.fluid_interface_residual(v_f, u, w, z, T, V, self.n, self.coefficients, self.ds(tags),
-                                              self.v_s)
+        if self.kinematics == "finite":
+            psi = ufl.TestFunction(V_vf)
+            self._fluid[iname]["flux_form"] = fem.form(lagrangian.normal_flux_load(
+                v_f, u, psi, self.n, self.coefficients, self.ds(tags), self.v_s))
+        return self._forms.fluid_interface_residual(v_f, u, w, z, T, V, self.n, self.coefficients,
+                                                    self.ds(tags), self.v_s)
 
     def _add_cell_interface(self, iname: str, tags) -> None:
         """Declare a cell interface: the owned mixed-space u dofs that receive its nodal forces."""
@@ -543,6 +582,12 @@ class PoroelasticGelSolver(FieldSolver):
                 (returned as given: the nodal reaction of the mixture equation would
                 only restate the input's consistent load vector).
             ``pressure`` (N, 1): nodal pore pressure p (units of s).
+            With ``kinematics="finite"`` also
+            ``normal_flux`` (N, 2): the consistent nodal vector
+                int j (phi_f v_f + phi_s v_s).n (psi_i n) dA of the volume flux
+                through the CURRENT interface (n its normal, j = da/dA; units V0 L0),
+                ``gel.lagrangian.normal_flux_load``;
+            ``displacement`` (N, 2): nodal u (units of d L0), for the fluid's mesh motion.
         Cell interfaces:
             ``displacement`` (N, 2): nodal u in units of d L0.
         """
@@ -557,11 +602,17 @@ class PoroelasticGelSolver(FieldSolver):
                 v_s = data["displacement_nodes"].from_function(self._velocity)
                 mixture = phi_f * v + v_s          # phi_f (w + v_s) + phi_s v_s
                 v = v + v_s
-            return {"mixture_velocity": mixture,
-                    "superficial_velocity": phi_f * v,
-                    "interstitial_velocity": v,
-                    "traction": data["traction"].copy(),
-                    "pressure": self._pressure_nodal(data["scalar"])}
+            out = {"mixture_velocity": mixture,
+                   "superficial_velocity": phi_f * v,
+                   "interstitial_velocity": v,
+                   "traction": data["traction"].copy(),
+                   "pressure": self._pressure_nodal(data["scalar"])}
+            if self.kinematics == "finite":
+                vec = assemble_residual_vector(data["flux_form"])
+                out["normal_flux"] = nodes.from_array(vec.array)
+                vec.destroy()
+                out["displacement"] = data["displacement_nodes"].from_array(x, parent=True)
+            return out
         return {"displacement": nodes.from_array(x, parent=True)}
 
     # -- nodal helpers ---------------------------------------------------
@@ -622,11 +673,11 @@ class PoroelasticGelSolver(FieldSolver):
     # -- post-processing (UFL expressions of the current state) ---------------
     def solid_fraction(self):
         """phi_s = phi_s0 / J (UFL)."""
-        return forms.solid_fraction(ufl.split(self.state)[1], self.coefficients)
+        return self._forms.solid_fraction(ufl.split(self.state)[1], self.coefficients)
 
     def network_stress(self):
         """Network Cauchy stress sigma_s in units of mu_s, s * sigma_hat_s (UFL)."""
-        return self._stress_unit * forms.network_stress(ufl.split(self.state)[1], self.coefficients)
+        return self._stress_unit * self._forms.network_stress(ufl.split(self.state)[1], self.coefficients)
 
     def network_von_mises(self):
         """2D von Mises measure of sigma_s in units of mu_s (UFL)."""
@@ -636,7 +687,7 @@ class PoroelasticGelSolver(FieldSolver):
         """Total stress phi_f sigma_f + phi_s sigma_s - p I in units of mu_s (UFL)."""
         rel, u, p = ufl.split(self.state)
         v_f = rel + self.v_s if self.transient else rel
-        return self._stress_unit * forms.total_stress(v_f, u, p, self.coefficients)
+        return self._stress_unit * self._forms.total_stress(v_f, u, p, self.coefficients)
 
     def stress_function(self, which: str = "network") -> fem.Function:
         """Interpolate a stress into a DG1 tensor space (units of mu_s).

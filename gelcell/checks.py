@@ -29,6 +29,26 @@ These are the equations the discrete problem satisfies, so both the
 monolithic and the converged partitioned solution give solver-tolerance
 residuals.  On Gamma2: |u_s - u_c| and |v_f| at the nodes, and the nodal
 force balance of the gel's mixture residual and the cell's residual.
+
+Finite kinematics (docs/finite-strain.md).  The reactions are those of the
+pulled-back forms (fluid.ale, gel.lagrangian): nominal forces; the conditions
+hold on the CURRENT interface, with its normal n and length ratio j = da/dA
+(Nanson, from the gel's side), which vary along it, so each condition is
+tested with the vector basis functions phi_j e_k:
+
+    I13+I16   alpha_n int j (V - (phi_f v_f + phi_s v_s)).n n_k phi_j
+              - int [T - (Ca/beta) j (V - v_f)]_t,k phi_j
+    I14       G_j + t_j
+    I15+I17   F_j - int [phi_f (T.n) n + T_t + j (Ca phi_s/eta) ((V - v_f).n) n
+                         - j (Ca phi_s^2/beta) (v_f - v_s)_t]_k phi_j     (the gel's fluid phase)
+
+with T the fluid's nominal traction recovered as the fluid recovers it.  On
+a curved (current) interface the normal and the tangential parts of a
+vector test function phi_j e_k are not polynomials, so I13 and I16 (and I15
+and I17) cannot be tested one by one: the discrete problem enforces the
+combinations above, the first with the fluid's Robin coefficient alpha_n as
+weight (its Robin condition does; the monolithic reference weighs its rows
+alike), and each condition alone only to the discretisation error.
 """
 
 from __future__ import annotations
@@ -46,8 +66,12 @@ from dolfinx.fem import petsc as fem_petsc
 import cell.forms as cell_forms
 import fluid.forms as fluid_forms
 import gel.forms as gel_forms
+import gel.lagrangian as gel_lagrangian
+from femtools.continuum import surface_stretch
 from femtools.interface import InterfaceNodes
+from fluid.ale import ale_bulk_residual
 from femtools.linalg import direct_solver
+from gelcell.boundaries import device_boundaries
 from gelcell.geometry import Tag
 from gelcell.results import DeviceFields
 
@@ -123,11 +147,24 @@ def _among(points: np.ndarray, others: np.ndarray, tol: float = 1e-10) -> np.nda
     return dist < tol
 
 
-def _fluid_interface_residuals(fields: DeviceFields, name: str, tag: int) -> dict[str, float]:
+def _relative(terms: dict, free: np.ndarray) -> dict[str, float]:
+    """``{name: |residual| / max |term|}`` over the free interface nodes."""
+    out = {}
+    for key, (res, *scales) in terms.items():
+        scale = max(np.linalg.norm(np.asarray(sc)[free]) for sc in scales)
+        out[key] = float(np.linalg.norm(np.asarray(res)[free]) / scale) if scale > 0 else 0.0
+    return out
+
+
+def _interface_reactions(fields: DeviceFields, name: str, tag: int) -> dict:
+    """The reactions at the interface nodes and what each check needs besides (forms of the case's kinematics).
+
+    ``t_fluid`` the Stokes residual (force ON the fluid), ``F_load``/``G_load`` the gel's fluid-phase and
+    mixture residuals, ``V_on_gel`` the fluid velocity on the gel's nodes, ``proj`` the trace projection
+    with the end nodes excluded.
+    """
     p = fields.params
-    s = p.stress_scale
-    ph = p.physics
-    visc, eta, beta = ph.ca / s, ph.eta, ph.beta
+    visc = p.physics.ca / p.stress_scale
     c = fields.gel_coefficients()
     V_f, P_f = fields.fluid_velocity, fields.fluid_pressure
     v_f, u, pp = fields.interstitial_velocity, fields.displacement, fields.pore_pressure
@@ -136,25 +173,44 @@ def _fluid_interface_residuals(fields: DeviceFields, name: str, tag: int) -> dic
     Vfl = V_f.function_space
     dxf = ufl.Measure("dx", domain=Vfl.mesh, metadata={"quadrature_degree": 4})
     vt = ufl.TestFunction(Vfl)
-    R_fluid = _reaction(fluid_forms.bulk_residual(V_f, P_f, vt, 0, visc, dxf), Vfl)
+    if p.kinematics == "finite":
+        d = fem.Constant(Vfl.mesh, p.displacement_scale)
+        fluid_form = ale_bulk_residual(V_f, P_f, vt, 0, visc, fields.fluid_mesh_displacement, d, dxf)
+    else:
+        fluid_form = fluid_forms.bulk_residual(V_f, P_f, vt, 0, visc, dxf)
     fluid_nodes = InterfaceNodes(Vfl, fields.fluid_tags, tag)
-    t_fluid = fluid_nodes.from_array(R_fluid.array)
+    t_fluid = fluid_nodes.from_array(_reaction(fluid_form, Vfl).array)
     Vg = v_f.function_space
     dxg = ufl.Measure("dx", domain=gm, metadata={"quadrature_degree": 4})
     w = ufl.TestFunction(Vg)
-    R_w = _reaction(gel_forms.fluid_phase_residual(v_f, u, pp, w, c, dxg), Vg)
-    R_m = _reaction(gel_forms.mixture_residual(v_f, u, pp, w, c, dxg), Vg)
+    forms = fields.gel_forms
+    R_w = _reaction(forms.fluid_phase_residual(v_f, u, pp, w, c, dxg), Vg)
+    R_m = _reaction(forms.mixture_residual(v_f, u, pp, w, c, dxg), Vg)
     gel_nodes = InterfaceNodes(Vg, fields.gel_tags, tag)
     if not np.allclose(gel_nodes.points, fluid_nodes.points, rtol=0, atol=1e-10):
         raise RuntimeError(f"{name}: fluid and gel interface nodes differ")
-    F_f_load, T_gel_load = gel_nodes.from_array(R_w.array), gel_nodes.from_array(R_m.array)
     # the fluid velocity on the gel's interface nodes
     V_on_gel = fem.Function(Vg)
     gel_nodes.to_function(fluid_nodes.from_function(V_f), V_on_gel)
     Q = fem.FunctionSpace(gm, ("Lagrange", 2))
     others = [int(t) for t in Tag if int(t) != tag and int(t) >= 10]
     ends = np.vstack([_points_on(Vfl, fields.fluid_tags, others), _points_on(Vg, fields.gel_tags, others)])
-    proj = _TraceProjection(Q, fields.gel_tags, tag, ends)
+    return dict(c=c, t_fluid=t_fluid, F_load=gel_nodes.from_array(R_w.array), G_load=gel_nodes.from_array(R_m.array),
+                V_on_gel=V_on_gel, gel_nodes=gel_nodes, Q=Q, Vg=Vg, Vfl=Vfl,
+                proj=_TraceProjection(Q, fields.gel_tags, tag, ends))
+
+
+def _fluid_interface_residuals(fields: DeviceFields, name: str, tag: int) -> dict[str, float]:
+    if fields.params.kinematics == "finite":
+        return _finite_fluid_interface_residuals(fields, name, tag)
+    p = fields.params
+    s = p.stress_scale
+    ph = p.physics
+    visc, eta, beta = ph.ca / s, ph.eta, ph.beta
+    v_f, u = fields.interstitial_velocity, fields.displacement
+    r = _interface_reactions(fields, name, tag)
+    c, t_fluid, F_f_load, T_gel_load = r["c"], r["t_fluid"], r["F_load"], r["G_load"]
+    V_on_gel, gel_nodes, proj, Vg = r["V_on_gel"], r["gel_nodes"], r["proj"], r["Vg"]
     free = proj.free
     # the fluid's traction on the gel as the field the gel was given (ends pinned to 0)
     T = fem.Function(Vg)
@@ -175,11 +231,54 @@ def _fluid_interface_residuals(fields: DeviceFields, name: str, tag: int) -> dic
         "I17": [-tested(visc * phi_s**2 * ufl.dot(v_f, tt)) + beta * (N_load @ tau),
                 tested(visc * phi_s**2 * ufl.dot(v_f, tt)), beta * (N_load @ tau)],
     }
-    out = {}
-    for key, (res, *scales) in terms.items():
-        scale = max(np.linalg.norm(np.asarray(sc)[free]) for sc in scales)
-        out[key] = float(np.linalg.norm(np.asarray(res)[free]) / scale) if scale > 0 else 0.0
-    return out
+    return _relative(terms, free)
+
+
+def _finite_fluid_interface_residuals(fields: DeviceFields, name: str, tag: int) -> dict[str, float]:
+    """The conditions on the current interface, tested with phi_j e_k (module docstring)."""
+    from gelcell.device import default_robin_coefficient
+    p = fields.params
+    s, d = p.stress_scale, p.displacement_scale
+    ph = p.physics
+    visc, eta, beta = ph.ca / s, ph.eta, ph.beta
+    v_f, u = fields.interstitial_velocity, fields.displacement
+    gm = fields.gel_mesh
+    r = _interface_reactions(fields, name, tag)
+    c, t_fluid, F_load, G_load = r["c"], r["t_fluid"], r["F_load"], r["G_load"]
+    V_on_gel, gel_nodes, proj, Vg, Vfl, Q = (r[k] for k in ("V_on_gel", "gel_nodes", "proj", "Vg", "Vfl", "Q"))
+    free = proj.free
+    # the fluid's traction on the gel as the fluid recovers it: a component is pinned (zero) only at the
+    # nodes where another boundary fixes that velocity component (fluid.solver)
+    b = device_boundaries(p.case, p.with_cell, getattr(p.geometry, "channel_height", 0.2))
+    T = fem.Function(Vg)
+    columns = []
+    for k in range(2):
+        fixing = [t for tags, comps in b.fluid_dirichlet_tags() if k in comps for t in tags]
+        proj_k = _TraceProjection(Q, fields.gel_tags, tag, _points_on(Vfl, fields.fluid_tags, fixing))
+        columns.append(proj_k.of_nodal_load(-t_fluid[:, k]))
+    gel_nodes.to_function(np.column_stack(columns), T)
+    j, n = surface_stretch(u, fem.Constant(gm, d), ufl.FacetNormal(gm))
+    phi_s = gel_lagrangian.solid_fraction(u, c)
+    tangential = lambda a: a - ufl.dot(a, n) * n  # noqa: E731
+
+    def tested(vector):
+        """int vector_k phi_j for every interface node j, (N, 2)."""
+        return np.column_stack([proj.tested(vector[k]) for k in range(2)])
+    alpha_n, alpha_t = default_robin_coefficient(p), visc / beta
+    flux = gel_lagrangian.mixture_flux(v_f, u, c)
+    i13 = tested(j * ufl.dot(V_on_gel - flux, n) * n)
+    i16 = tested(tangential(T - alpha_t * j * (V_on_gel - v_f)))
+    phase = [tested((1 - phi_s) * ufl.dot(T, n) * n + tangential(T)),
+             tested(j * visc * phi_s / eta * ufl.dot(V_on_gel - v_f, n) * n),
+             tested(j * visc * phi_s**2 / beta * tangential(v_f))]
+    scale_13 = tested(j * ufl.dot(V_on_gel, n) * n)
+    scales_16 = [tested(tangential(T)), tested(alpha_t * j * tangential(V_on_gel - v_f))]
+    terms = {
+        "I13+I16": [alpha_n * i13 - i16, alpha_n * scale_13, *scales_16],
+        "I14": [G_load + t_fluid, t_fluid],
+        "I15+I17": [F_load - phase[0] - phase[1] + phase[2], F_load, *phase],
+    }
+    return _relative(terms, free)
 
 
 def _interface_frame(proj) -> tuple[np.ndarray, np.ndarray]:
@@ -206,8 +305,8 @@ def _cell_interface_residuals(fields: DeviceFields) -> dict[str, float]:
         raise RuntimeError("Gamma2: gel and cell interface nodes differ")
     dxg = ufl.Measure("dx", domain=Vg.mesh, metadata={"quadrature_degree": 4})
     dxc = ufl.Measure("dx", domain=Vc.mesh, metadata={"quadrature_degree": 4})
-    R_m = gel_nodes.from_array(_reaction(gel_forms.mixture_residual(v_f, u, pp, ufl.TestFunction(Vg), c, dxg),
-                                         Vg).array)
+    R_m = gel_nodes.from_array(_reaction(fields.gel_forms.mixture_residual(v_f, u, pp, ufl.TestFunction(Vg), c,
+                                                                           dxg), Vg).array)
     cm = Vc.mesh
     k = lambda v: fem.Constant(cm, float(v))  # noqa: E731
     R_c = cell_nodes.from_array(_reaction(cell_forms.residual(uc, ufl.TestFunction(Vc), k(p.mu_c), k(p.lambda_c),

@@ -42,7 +42,8 @@ Runs in serial or under mpirun (e.g. mpirun -n 2 gelcell mesh normal --out m).
 """
 
 EPILOG = """\
-Case options (--e, --ca, --cell-moduli, --gel-moduli, --mesh-size, --cell/--no-cell)
+Case options (--e, --ca, --cell-moduli, --gel-moduli, --mesh-size, --cell/--no-cell,
+--kinematics)
 override the values of a --config TOML file, which override the defaults of
 model.md (see examples/case_baseline_shear.toml).  Run "gelcell COMMAND --help"
 for the options of a command.
@@ -67,7 +68,7 @@ def add_case_arguments(parser: argparse.ArgumentParser, case_positional: bool = 
 
     ``case`` (positional, ``shear``/``normal``, optional if ``--config`` names
     it), ``--config``, ``--cell/--no-cell``, ``--e``, ``--ca``,
-    ``--cell-moduli``, ``--gel-moduli``, ``--mesh-size``.
+    ``--cell-moduli``, ``--gel-moduli``, ``--mesh-size``, ``--kinematics``.
     """
     if case_positional:
         parser.add_argument("case", nargs="?", choices=CASES,
@@ -93,16 +94,21 @@ def add_case_arguments(parser: argparse.ArgumentParser, case_positional: bool = 
                         "moduli in Pa (so Ca -> Ca/X); applied after --cell-moduli")
     g.add_argument("--mesh-size", type=_number, metavar="F",
                    help="multiply every element size by F (2 = twice as coarse, 0.5 = twice as fine)")
+    g.add_argument("--kinematics", metavar="finite|small",
+                   help="finite (default): the gel in total Lagrangian form and the fluid domain following "
+                        "the gel's surface, right at any strain; small: every field on its undeformed "
+                        "domain, exact to the size of the strains (~1e-6 at Table 1 loads)")
 
 
 def case_parameters_from_args(args: argparse.Namespace) -> CaseParameters:
     """Validated parameters from the options of :func:`add_case_arguments`.
 
-    Order: defaults, then ``--config``, then ``case``, ``--cell``, ``--ca``,
-    ``--e``, ``--mesh-size`` (validated together), then ``--cell-moduli``,
+    Order: defaults, then ``--config``, then ``case``, ``--cell``, ``--kinematics``,
+    ``--ca``, ``--e``, ``--mesh-size`` (validated together), then ``--cell-moduli``,
     then ``--gel-moduli``.  Raises :class:`ParameterError`.
     """
     overrides = {"case.name": getattr(args, "case", None), "case.cell": args.cell,
+                 "case.kinematics": args.kinematics,
                  "physics.ca": args.ca, "geometry.e": args.e, "mesh.size_factor": args.mesh_size}
     if args.config:
         params = CaseParameters.from_toml(args.config, overrides)
@@ -342,7 +348,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         partitioned_config(base, args.scheme, args.acceleration)
     _check_before_meshing(cases, args.out)
     run_sweep(cases, args.param, args.values, args.out, monolithic=args.monolithic, scheme=args.scheme,
-              acceleration=args.acceleration, verbose=not args.quiet, gamma2=args.gamma2, debug=args.debug)
+              acceleration=args.acceleration, verbose=not args.quiet, gamma2=args.gamma2, debug=args.debug,
+              compare_kinematics=args.compare_kinematics)
     return 0
 
 
@@ -409,12 +416,18 @@ def build_parser() -> argparse.ArgumentParser:
                                    "(the summary quantities per value), sweep.png (each quantity against "
                                    "the parameter) and one summary per run into DIR.  The gel-moduli sweep "
                                    "keeps the dimensional flow speed and the cell moduli in Pa fixed, so Ca "
-                                   "and mu_c/mu_s change with it (model.md section 5).")
+                                   "and mu_c/mu_s change with it (model.md section 5).  --param ca also "
+                                   "draws linearity.png: displacements, strains and stresses divided by Ca, "
+                                   "which stay flat while the response is linear.")
     add_case_arguments(p)
     _add_solver_arguments(p)
     p.add_argument("--param", required=True, choices=SWEEPS, help="the swept parameter")
     p.add_argument("--values", required=True, nargs="+", type=_number, metavar="V",
                    help="values of the parameter (Ca; multiples of the cell or gel moduli; e in L0)")
+    p.add_argument("--compare-kinematics", action="store_true",
+                   help="also run every value on the other kinematics path (small vs finite) and record the "
+                        "departure of the small-strain result from the finite-strain one (sweep.csv, "
+                        "linearity.png)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (replaced)")
     p.set_defaults(func=cmd_sweep)
 

@@ -33,6 +33,23 @@ Data (per fluid interface G in Gamma1, Gamma3, all on matching nodes):
 Units inside the solvers: velocity V0, length L0, stress Ca mu_s (= mu V0/L0),
 displacement Ca L0 (CaseParameters.stress_scale / displacement_scale).
 
+Finite kinematics (``params.kinematics == "finite"``, docs/finite-strain.md):
+the gel is total Lagrangian (``gel.lagrangian``) and the fluid domain
+follows the gel's surface (``fluid.ale.MovingStokesSolver``: a harmonic
+extension of the gel's interface displacement, Stokes on the current
+configuration).  Tractions are then nominal (per unit reference length of
+the interface) and the data on Gamma1/Gamma3 are
+
+    G/traction, G/velocity   fluid -> gel   as above (T_F nominal)
+    G/gel_traction           gel -> fluid   T_G (nominal)
+    G/normal_flux            gel -> fluid   int j (phi_f v_f + phi_s v_s).n (psi_i n) dA, the gel's
+                                            consistent nodal volume flux through the CURRENT interface
+    G/interstitial_velocity  gel -> fluid   v_f (I16)
+    G/displacement           gel -> fluid   u_s on the interface: the fluid's mesh motion
+
+so that the fluid's Robin condition holds in the same weak form as the
+monolithic reference's I13 on the current interface.
+
 Time-dependent runs (model.md section 8; ``Device(..., transient=True)``).
 Stokes and the cell are quasi-static: solved as equilibria at t + dt in each
 window.  The gel carries the time derivative v_s = du_s/dt (backward Euler
@@ -59,6 +76,7 @@ from mpi4py import MPI
 import coupling as cp
 from cell import NeoHookeanCellSolver
 from fluid import FluidInterface, StokesSolver
+from fluid.ale import MovingStokesSolver
 from gel import GelParameters, PoroelasticGelSolver
 from femtools.serialize import CanonicalOrder
 from femtools.timestepping import WindowClock
@@ -66,11 +84,14 @@ from gelcell.boundaries import DeviceBoundaries, device_boundaries
 from gelcell.geometry import build_device
 from gelcell.parameters import CaseParameters
 
-__all__ = ["Device", "FluidParticipant", "GelParticipant", "CellParticipant", "coupling_data",
+__all__ = ["Device", "FluidParticipant", "MovingFluidParticipant", "GelParticipant", "CellParticipant",
+           "coupling_data",
            "default_robin_coefficient", "coupling_config"]
 
 FLUID_TO_GEL = ("traction", "velocity")
 GEL_TO_FLUID = ("gel_traction", "mixture_velocity", "interstitial_velocity")
+#: gel -> fluid with finite kinematics (see the module docstring)
+GEL_TO_MOVING_FLUID = ("gel_traction", "normal_flux", "interstitial_velocity", "displacement")
 
 
 def default_robin_coefficient(params: CaseParameters) -> float:
@@ -111,12 +132,13 @@ def default_gamma2_coefficient(params: CaseParameters) -> float:
     return float(2.0 * params.displacement_scale / params.stress_scale * params.physics.phi_s0 / radius)
 
 
-def coupling_data(boundaries: DeviceBoundaries, gamma2: str = "dirichlet") -> list[cp.Data]:
+def coupling_data(boundaries: DeviceBoundaries, gamma2: str = "dirichlet", kinematics: str = "small") -> list[cp.Data]:
     """The coupling data of a device (see the module docstring)."""
     data = []
+    to_fluid = GEL_TO_MOVING_FLUID if kinematics == "finite" else GEL_TO_FLUID
     for g in boundaries.fluid_interfaces:
         data += [cp.Data(f"{g}/{k}", mesh=g, dim=2, writer="fluid", readers=("gel",)) for k in FLUID_TO_GEL]
-        data += [cp.Data(f"{g}/{k}", mesh=g, dim=2, writer="gel", readers=("fluid",)) for k in GEL_TO_FLUID]
+        data += [cp.Data(f"{g}/{k}", mesh=g, dim=2, writer="gel", readers=("fluid",)) for k in to_fluid]
     for g in boundaries.cell_interfaces:
         data += [cp.Data(f"{g}/displacement", mesh=g, dim=2, writer="gel", readers=("cell",)),
                  cp.Data(f"{g}/force", mesh=g, dim=2, writer="cell", readers=("gel",))]
@@ -210,13 +232,15 @@ class FluidParticipant(cp.Participant):
         if self.inflow is not None:
             self.solver.scale_boundary_velocity(self.inflow(t + dt))
 
+    def _set_inputs(self, g: str, inputs) -> None:
+        T_G = inputs[f"{g}/gel_traction"]
+        q = inputs[f"{g}/mixture_velocity"]
+        v_f = inputs[f"{g}/interstitial_velocity"]
+        self.solver.set_interface_data(g, robin_normal=-T_G + self.alpha_n * q, robin_tangential=self.alpha_t * v_f)
+
     def solve(self, inputs):
         for g in self.interfaces:
-            T_G = inputs[f"{g}/gel_traction"]
-            q = inputs[f"{g}/mixture_velocity"]
-            v_f = inputs[f"{g}/interstitial_velocity"]
-            self.solver.set_interface_data(g, robin_normal=-T_G + self.alpha_n * q,
-                                           robin_tangential=self.alpha_t * v_f)
+            self._set_inputs(g, inputs)
         self.solver.solve()
         out = {}
         for g in self.interfaces:
@@ -224,6 +248,39 @@ class FluidParticipant(cp.Participant):
             out[f"{g}/traction"] = -d["traction"]
             out[f"{g}/velocity"] = d["velocity"]
         return out
+
+
+class MovingFluidParticipant(FluidParticipant):
+    """The moving-domain Stokes solver (finite kinematics): the same conditions on the current interface.
+
+    It takes the gel's interface displacement (its mesh motion), the gel's
+    nominal traction and its consistent nodal normal flux (``normal_flux``):
+
+        t_0.n + alpha_n j V.n = -T_G.n + alpha_n q_n     (weakly, q_n as nodal loads)
+        t_0,tau + alpha_t j V_tau = alpha_t j v_f,tau
+
+    with t_0 the nominal traction on the fluid (fluid.ale).  Its state (the
+    unknowns, Newton's initial guess, and the mesh position) is saved and
+    restored with the time windows and checkpoints.
+    """
+
+    def save_state(self):
+        return self.solver.get_state()
+
+    def load_state(self, state) -> None:
+        self.solver.set_state(state)
+
+    def checkpoint_state(self):
+        return self.solver.checkpoint_state()
+
+    def load_checkpoint_state(self, state) -> None:
+        self.solver.load_checkpoint_state(state)
+
+    def _set_inputs(self, g: str, inputs) -> None:
+        self.solver.set_interface_data(g, robin_normal=-inputs[f"{g}/gel_traction"],
+                                       robin_tangential=self.alpha_t * inputs[f"{g}/interstitial_velocity"],
+                                       normal_flux=inputs[f"{g}/normal_flux"],
+                                       displacement=inputs[f"{g}/displacement"])
 
 
 class GelParticipant(cp.Participant):
@@ -280,11 +337,12 @@ class GelParticipant(cp.Participant):
             if self.gamma2 == "robin":
                 # the force the gel exerts on the cell: the opposite of the load it carries
                 out[f"{g}/gel_force"] = -inputs[f"{g}/force"]
+        sent = GEL_TO_MOVING_FLUID[1:] if self.solver.kinematics == "finite" else GEL_TO_FLUID[1:]
         for g in self.fluid_interfaces:
             d = self.solver.interface_data(g)
             out[f"{g}/gel_traction"] = d["traction"]
-            out[f"{g}/mixture_velocity"] = d["mixture_velocity"]
-            out[f"{g}/interstitial_velocity"] = d["interstitial_velocity"]
+            for key in sent:
+                out[f"{g}/{key}"] = d[key]
         return out
 
 
@@ -380,11 +438,14 @@ class Device:
         self.mesh_time = time.perf_counter() - t0
         t0 = time.perf_counter()
         fluid_mesh, fluid_tags = self.mesh.region("fluid")
-        self.fluid = StokesSolver(
+        self.kinematics = params.kinematics
+        finite = self.kinematics == "finite"
+        fluid_class, fluid_kw = (MovingStokesSolver, {"displacement_scale": d}) if finite else (StokesSolver, {})
+        self.fluid = fluid_class(
             fluid_mesh, fluid_tags, viscosity=viscosity, velocity_bcs=b.fluid_velocity,
             component_bcs=b.fluid_component,
             interfaces={name: FluidInterface(tag, "robin", "robin", self.alpha_n, self.alpha_t)
-                        for name, tag in b.fluid_interfaces.items()})
+                        for name, tag in b.fluid_interfaces.items()}, **fluid_kw)
         gel_mesh, gel_tags = self.mesh.region("gel")
         self.gel_parameters = GelParameters(phi_s0=ph.phi_s0, xi=ph.xi, lambda_s=ph.lambda_s,
                                             beta=ph.beta, eta=ph.eta, Ca=ph.ca, stress_scale=s,
@@ -392,7 +453,7 @@ class Device:
         self.gel = PoroelasticGelSolver(
             gel_mesh, gel_tags, self.gel_parameters, no_slip=b.gel_no_slip, symmetry=b.gel_symmetry,
             fluid_interfaces=b.fluid_interfaces, cell_interfaces=b.cell_interfaces,
-            newton_rtol=newton_rtol, transient=transient)
+            newton_rtol=newton_rtol, transient=transient, kinematics=self.kinematics)
         self.cell = None
         if params.with_cell:
             cell_mesh, cell_tags = self.mesh.region("cell")
@@ -404,13 +465,14 @@ class Device:
                 symmetry=b.cell_symmetry, newton_rtol=newton_rtol)
         self.setup_time = time.perf_counter() - t0
         self.transient = bool(transient)
-        self.participants = [FluidParticipant(self.fluid, b.fluid_interfaces, self.alpha_n, self.alpha_t,
-                                              inflow),
+        fluid_participant = MovingFluidParticipant if finite else FluidParticipant
+        self.participants = [fluid_participant(self.fluid, b.fluid_interfaces, self.alpha_n, self.alpha_t,
+                                               inflow),
                              GelParticipant(self.gel, b.fluid_interfaces, b.cell_interfaces, gamma2,
                                             time_scheme)]
         if self.cell is not None:
             self.participants.append(CellParticipant(self.cell, b.cell_interfaces, gamma2))
-        self.data = coupling_data(b, gamma2)
+        self.data = coupling_data(b, gamma2, self.kinematics)
         self.scheme: cp.CouplingScheme | None = None
         self.result: cp.CouplingResult | None = None
 

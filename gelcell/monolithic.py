@@ -40,6 +40,29 @@ partitioned fluid solver does when it recovers its consistent traction.
 The system is solved by Newton's method with the exact Jacobian.  It reuses
 only the constitutive laws and bulk forms of fluid/gel/cell, not the
 coupling loop.
+
+Finite kinematics (``coefficients.kinematics == "finite"``, docs/finite-strain.md).
+The gel takes the total Lagrangian forms of ``gel.lagrangian``; the fluid is
+Stokes on its current domain pulled back to the (fixed) mesh with the ALE
+forms of ``fluid.ale``.  One dolfinx mesh cannot move its fluid part without
+moving the gel, whose reference configuration it also is, so the mesh stays
+where it is and the fluid's motion is a seventh field:
+
+    u_m     the fluid mesh displacement beyond Gamma1/Gamma3   (P2^2)   active on the fluid
+
+The fluid's mesh displacement is u + u_m on the fluid cells: u (the network
+displacement) is one continuous P2 field, equal to u_s on the interface
+nodes and left at zero on the fluid's own nodes (they have no equation of u);
+u_m is zero on Gamma1/Gamma3 and on the fluid's outer boundaries (its
+component normal to a symmetry line only) and satisfies the harmonic
+extension (femtools.meshmotion) tested with its own test function.  So u + u_m
+is the discrete harmonic extension of u_s with Dirichlet data on the
+interface, the same as the partitioned fluid's, and the gel's equations on the
+interface nodes see no mesh-motion terms.  The multiplier lam is then the
+NOMINAL traction (per unit reference length), and its equations are I13 and
+I16 on the current interface (its normal n and length ratio j from the gel's
+side): int j (V - q).n (mu.n) dA and int (lam - (Ca/beta) j (V - v_f))_t . mu_t dA,
+weighted as the partitioned fluid's Robin condition weighs them (``interface_weight``).
 """
 
 from __future__ import annotations
@@ -53,12 +76,16 @@ import scipy.spatial
 from mpi4py import MPI
 
 import ufl
-from dolfinx import fem
+from dolfinx import fem, mesh as dmesh
 
 import cell.forms as cell_forms
 import fluid.forms as fluid_forms
 import gel.forms as gel_forms
+import gel.lagrangian as gel_lagrangian
+from femtools.continuum import surface_stretch
 from femtools.functions import quadrature_measure
+from femtools.meshmotion import harmonic_residual
+from fluid.ale import ale_bulk_residual
 from femtools.linalg import NewtonSolver, jacobian_at_rest
 from femtools.timestepping import RateHistory
 from gelcell.boundaries import DeviceBoundaries
@@ -67,6 +94,8 @@ from gelcell.geometry import Tag
 __all__ = ["MonolithicCoefficients", "MonolithicSolver"]
 
 FIELDS = ("V", "P", "w", "u", "p", "lam")
+#: the fields with finite kinematics: the fluid's mesh displacement beyond the interfaces
+FIELDS_FINITE = FIELDS + ("u_m",)
 
 
 @dataclasses.dataclass
@@ -83,6 +112,10 @@ class MonolithicCoefficients:
     lambda_c: float
     stress_scale: float
     displacement_scale: float
+    kinematics: str = "small"
+    #: finite kinematics: the weight of I13 against I16 in the multiplier's rows (the partitioned
+    #: fluid's Robin coefficient alpha_n, stress unit per velocity); None: 1
+    interface_weight: float | None = None
 
 
 class MonolithicSolver:
@@ -106,7 +139,11 @@ class MonolithicSolver:
         msh.topology.create_connectivity(tdim - 1, tdim)
         P2 = ufl.VectorElement("Lagrange", msh.ufl_cell(), 2)
         P1 = ufl.FiniteElement("Lagrange", msh.ufl_cell(), 1)
-        self.W = fem.FunctionSpace(msh, ufl.MixedElement([P2, P1, P2, P2, P1, P2]))
+        if coefficients.kinematics not in ("small", "finite"):
+            raise ValueError(f"kinematics must be 'small' or 'finite', got {coefficients.kinematics!r}")
+        self.finite = coefficients.kinematics == "finite"
+        self.field_names = FIELDS_FINITE if self.finite else FIELDS
+        self.W = fem.FunctionSpace(msh, ufl.MixedElement([P2, P1, P2, P2, P1, P2] + ([P2] if self.finite else [])))
         self.w = fem.Function(self.W, name="monolithic")
         self.has_cell = len(boundaries.cell_interfaces) > 0
         self.transient = bool(transient)
@@ -148,8 +185,8 @@ class MonolithicSolver:
     def _residual(self, degree: int):
         msh = self.mesh
         c = self._constants()
-        V, P, rel, u, p, lam = ufl.split(self.w)
-        v, q, w, z, q_g, mu = ufl.TestFunctions(self.W)
+        V, P, rel, u, p, lam = ufl.split(self.w)[:6]
+        v, q, w, z, q_g, mu = ufl.TestFunctions(self.W)[:6]
         v_s = None if self.history is None else self.history.rate
         v_f = rel if v_s is None else rel + v_s
         dx = quadrature_measure("dx", msh, self.cell_tags, degree)
@@ -160,23 +197,48 @@ class MonolithicSolver:
         def gel_side(expr):
             return chi("+") * expr("+") + chi("-") * expr("-")
 
-        F = fluid_forms.bulk_residual(V, P, v, q, c.viscosity, dx(int(Tag.FLUID)))
-        F += gel_forms.bulk_residual(v_f, u, p, w, z, q_g, c, dx(int(Tag.GEL)), v_s=v_s)
+        alpha_t = c.viscosity / c.beta
+        if self.finite:
+            F, interface = self._finite_terms(c, v_f, v_s, u, p, dx, n)
+        else:
+            F = fluid_forms.bulk_residual(V, P, v, q, c.viscosity, dx(int(Tag.FLUID)))
+            F += gel_forms.bulk_residual(v_f, u, p, w, z, q_g, c, dx(int(Tag.GEL)), v_s=v_s)
+            flux = gel_forms.mixture_flux(v_f, u, c, v_s)
+            tangential = lambda a: a - ufl.dot(a, n) * n  # noqa: E731
+            interface = (gel_forms.fluid_interface_residual(v_f, u, w, z, lam, V, n, c, 1, v_s)
+                         + (ufl.dot(V, n) - ufl.dot(flux, n)) * ufl.dot(mu, n)
+                         + ufl.dot(tangential(lam - alpha_t * (V - v_f)), tangential(mu)))
         if self.has_cell:
             mu_c, lambda_c, d, s = self.cell_moduli
             F += cell_forms.residual(u, z, mu_c, lambda_c, d, s, dx(int(Tag.CELL)))
-        flux = gel_forms.mixture_flux(v_f, u, c, v_s)
-        alpha_t = c.viscosity / c.beta
-        tangential = lambda a: a - ufl.dot(a, n) * n  # noqa: E731
-        interface = (ufl.dot(lam, v)
-                     + gel_forms.fluid_interface_residual(v_f, u, w, z, lam, V, n, c, 1, v_s)
-                     + (ufl.dot(V, n) - ufl.dot(flux, n)) * ufl.dot(mu, n)
-                     + ufl.dot(tangential(lam - alpha_t * (V - v_f)), tangential(mu))
-                     # a zero multiplier "mass": diagonal entries for the rows pinned at the interface ends
-                     + fem.Constant(msh, 0.0) * ufl.dot(lam, mu))
+        # the fluid's load from the multiplier, and a zero multiplier "mass": diagonal entries for
+        # the rows pinned at the interface ends
+        interface += ufl.dot(lam, v) + fem.Constant(msh, 0.0) * ufl.dot(lam, mu)
         for tag in self.boundaries.fluid_interfaces.values():
             F += gel_side(interface) * dS(tag)
         return F
+
+    def _finite_terms(self, c, v_f, v_s, u, p, dx, N):
+        """Finite kinematics: the bulk residual and the interface integrand (module docstring)."""
+        msh, d = self.mesh, c.d
+        V, P, rel, _, _, lam, u_m = ufl.split(self.w)
+        v, q, w, z, q_g, mu, z_m = ufl.TestFunctions(self.W)
+        dJdt = None if self.history is None else gel_lagrangian.volume_rate(
+            u, self.history.past, self.history.constants, d)
+        fluid_motion = u + u_m
+        dx_fluid = dx(int(Tag.FLUID))
+        F = ale_bulk_residual(V, P, v, q, c.viscosity, fluid_motion, d, dx_fluid)
+        F += harmonic_residual(fluid_motion, z_m, dx_fluid)
+        F += gel_lagrangian.bulk_residual(v_f, u, p, w, z, q_g, c, dx(int(Tag.GEL)), v_s=v_s, dJdt=dJdt)
+        j, n = surface_stretch(u, d, N)
+        flux = gel_lagrangian.mixture_flux(v_f, u, c, v_s)
+        alpha_t = c.viscosity / c.beta
+        weight = fem.Constant(msh, float(self.coefficients.interface_weight or 1.0))
+        tangential = lambda a: a - ufl.dot(a, n) * n  # noqa: E731
+        interface = (gel_lagrangian.fluid_interface_residual(v_f, u, w, z, lam, V, N, c, 1, v_s)
+                     + weight * j * (ufl.dot(V, n) - ufl.dot(flux, n)) * ufl.dot(mu, n)
+                     - ufl.dot(tangential(lam - alpha_t * j * (V - v_f)), tangential(mu)))
+        return F, interface
 
     # -- boundary conditions -------------------------------------------------
     def _sub(self, i: int, comp: int | None = None):
@@ -216,6 +278,8 @@ class MonolithicSolver:
         parts = [self._active(0, [Tag.FLUID]), self._active(1, [Tag.FLUID]),
                  self._active(2, [Tag.GEL]), self._active(3, solid), self._active(4, [Tag.GEL]),
                  self._active(5, facets=list(self.boundaries.fluid_interfaces.values()))]
+        if self.finite:
+            parts.append(self._active(6, [Tag.FLUID]))
         return np.unique(np.hstack(parts))
 
     def _boundary_conditions(self):
@@ -240,6 +304,29 @@ class MonolithicSolver:
             bcs.append(self._dirichlet(iu, tags, 0.0, comp))
         for tags, comp in b.cell_symmetry:
             bcs.append(self._dirichlet(iu, tags, 0.0, comp))
+        if self.finite:
+            bcs += self._mesh_motion_conditions()
+        return bcs
+
+    def _mesh_motion_conditions(self) -> list:
+        """u_m = 0 on Gamma1/Gamma3 and the fluid's outer boundaries (one component on symmetry lines)."""
+        b, im = self.boundaries, 6
+        msh, tdim = self.mesh, self.mesh.topology.dim
+        sliding = [(tags, comp) for tags, comp, _ in b.fluid_component]
+        sliding_facets = self._facets([t for tags, _ in sliding for t in tags]) if sliding else np.empty(0, np.int32)
+        exterior = dmesh.exterior_facet_indices(msh.topology)
+        f2c = msh.topology.connectivity(tdim - 1, tdim)
+        fluid_cells = np.zeros(msh.topology.index_map(tdim).size_local + msh.topology.index_map(tdim).num_ghosts,
+                               dtype=bool)
+        fluid_cells[self.cell_tags.find(int(Tag.FLUID))] = True
+        outer = np.array([f for f in exterior if fluid_cells[f2c.links(f)[0]]], dtype=np.int32)
+        held = np.setdiff1d(outer, sliding_facets)
+        sub, Vs = self._sub(im)
+        interface = self._facets(list(b.fluid_interfaces.values()))
+        bcs = [fem.dirichletbc(fem.Function(Vs), fem.locate_dofs_topological((sub, Vs), tdim - 1, interface), sub)]
+        bcs.append(fem.dirichletbc(fem.Function(Vs), fem.locate_dofs_topological((sub, Vs), tdim - 1, held), sub))
+        for tags, comp in sliding:
+            bcs.append(self._dirichlet(im, tags, 0.0, comp))
         return bcs
 
     # -- solve and results ---------------------------------------------------
@@ -251,7 +338,8 @@ class MonolithicSolver:
         return iterations
 
     def field(self, name: str) -> fem.Function:
-        """One field as a function on the whole mesh (collapsed): a name of FIELDS or ``"v_f"`` (= w + v_s)."""
+        """One field as a function on the whole mesh (collapsed): a name of ``field_names``, ``"v_f"``
+        (= w + v_s) or (finite kinematics) ``"fluid_motion"`` (= u + u_m, the fluid's mesh displacement)."""
         if name == "v_f":
             f = self.w.sub(FIELDS.index("w")).collapse()
             if self.history is not None:
@@ -264,8 +352,11 @@ class MonolithicSolver:
                         raise RuntimeError("monolithic: the w and u subspaces do not share their nodes")
                 v_s = self.history.nodal_rate(self.w.x.array[self._u_dofs])
                 f.x.array.reshape(-1, 2)[:] += v_s.reshape(-1, 2)[self._u_block_of_w]
+        elif name == "fluid_motion":
+            f = self.w.sub(FIELDS.index("u")).collapse()
+            f.x.array[:] += self.w.sub(FIELDS_FINITE.index("u_m")).collapse().x.array
         else:
-            f = self.w.sub(FIELDS.index(name)).collapse()
+            f = self.w.sub(self.field_names.index(name)).collapse()
         f.name = name
         return f
 

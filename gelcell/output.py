@@ -43,7 +43,8 @@ class DerivedFields:
 
     gel: v_f, u_s, p, the network's von Mises stress and the von Mises
     measures of the three stress parts and their sum (interpolated at the P2
-    nodes); cell: u_c, von Mises strain and stress; fluid: V, P.  The stress
+    nodes); cell: u_c, von Mises strain and stress; fluid: V, P and, with
+    finite kinematics, the mesh displacement to its current domain.  The stress
     and displacement units enter as Constants, so no parameter value makes
     anything compile again; ``update()`` recomputes every field from the
     (possibly changed) functions of ``fields``.
@@ -59,11 +60,16 @@ class DerivedFields:
         Q2 = fem.FunctionSpace(gm, ("Lagrange", 2))
         phi_s = gel_forms.solid_fraction(u, c)
         scalars = {"von_mises_network": von_mises(gel_forms.network_stress(u, c))}
-        parts = {"pressure": -pp * ufl.Identity(2), "brinkman": (1 - phi_s) * gel_forms.fluid_stress(v_f, c),
-                 "network": phi_s * gel_forms.network_stress(u, c), "total": gel_forms.total_stress(v_f, u, pp, c)}
+        parts = {"pressure": -pp * ufl.Identity(2), "brinkman": (1 - phi_s) * fields.fluid_stress(c),
+                 "network": phi_s * gel_forms.network_stress(u, c),
+                 "total": fields.gel_forms.total_stress(v_f, u, pp, c)}
         scalars.update({f"von_mises_{k}_part": von_mises(e) for k, e in parts.items()})
         self.fluid = {"V": fem.Function(fields.fluid_velocity.function_space, name="V"),
                       "P": fem.Function(fields.fluid_pressure.function_space, name="P")}
+        if fields.fluid_mesh_displacement is not None:
+            # finite kinematics: warp the fluid mesh by it to see the current domain
+            self.fluid["mesh_displacement"] = fem.Function(fields.fluid_mesh_displacement.function_space,
+                                                           name="mesh_displacement")
         self.gel = {"v_f": fem.Function(v_f.function_space, name="v_f"),
                     "u_s": fem.Function(u.function_space, name="u_s"),
                     "p": fem.Function(pp.function_space, name="p")}
@@ -94,6 +100,8 @@ class DerivedFields:
                                  (self.gel["v_f"], f.interstitial_velocity, 1.0), (self.gel["u_s"], f.displacement, d),
                                  (self.gel["p"], f.pore_pressure, s)):
             dst.x.array[:] = factor * src.x.array
+        if f.fluid_mesh_displacement is not None:
+            self.fluid["mesh_displacement"].x.array[:] = d * f.fluid_mesh_displacement.x.array
         if self.cell is not None:
             self.cell["u_c"].x.array[:] = d * f.cell_displacement.x.array
         for dst, expression in self._expressions:

@@ -47,9 +47,12 @@ import tomllib
 import typing
 
 __all__ = ["ParameterError", "Physics", "Dimensional", "CellMaterial", "ShearGeometry",
-           "NormalGeometry", "MeshSizes", "CaseParameters", "CASES", "REPORT_UNITS"]
+           "NormalGeometry", "MeshSizes", "CaseParameters", "CASES", "KINEMATICS", "REPORT_UNITS"]
 
 CASES = ("shear", "normal")
+#: ``"finite"`` (default): total Lagrangian gel, moving fluid domain (docs/finite-strain.md);
+#: ``"small"``: the equations on the undeformed domain, exact to the size of the strains
+KINEMATICS = ("finite", "small")
 
 #: Units in which results are reported (``to_report``) and their factor from SI.
 REPORT_UNITS = {"length": ("µm", 1e6), "displacement": ("µm", 1e6),
@@ -438,6 +441,9 @@ class CaseParameters:
     Args:
         case: ``"shear"`` or ``"normal"``.
         with_cell: whether the cell (and Γ2) is present.
+        kinematics: ``"finite"`` (total Lagrangian gel and cell, the fluid
+            domain following the gel's surface) or ``"small"`` (every field on
+            its undeformed domain); ``[case] kinematics`` in a case file.
         physics, dimensional, cell, mesh: the blocks above (defaults if omitted).
         geometry: :class:`ShearGeometry` or :class:`NormalGeometry` matching
             ``case`` (default geometry of the case if omitted).
@@ -448,6 +454,7 @@ class CaseParameters:
 
     case: str = "shear"
     with_cell: bool = True
+    kinematics: str = "finite"
     physics: Physics = dataclasses.field(default_factory=Physics)
     dimensional: Dimensional = dataclasses.field(default_factory=Dimensional)
     cell: CellMaterial = dataclasses.field(default_factory=CellMaterial)
@@ -459,6 +466,10 @@ class CaseParameters:
     def __post_init__(self):
         if self.case not in CASES:
             raise ParameterError(f"parameter 'case' = {self.case!r} is not one of {list(CASES)}")
+        if self.kinematics not in KINEMATICS:
+            raise ParameterError(f"parameter 'kinematics' = {self.kinematics!r} is not one of {list(KINEMATICS)} "
+                                 f"(finite: total Lagrangian gel and a moving fluid domain; small: every field on "
+                                 f"its undeformed domain)")
         if self.geometry is None:
             object.__setattr__(self, "geometry", _GEOMETRY[self.case]())
         object.__setattr__(self, "coupling", copy.deepcopy(dict(self.coupling or {})))
@@ -493,7 +504,7 @@ class CaseParameters:
                   source: str = "input") -> "CaseParameters":
         """Build from the TOML layout (see ``examples/case_baseline_*.toml``).
 
-        Tables: ``[case] name, cell``; ``[physics]``; ``[dimensional]`` (may
+        Tables: ``[case] name, cell, kinematics``; ``[physics]``; ``[dimensional]`` (may
         give ``V0`` instead of ``physics.ca``); ``[cell]`` with ``mu_c`` and
         ``lambda_c`` [Pa], or ``youngs_modulus`` [Pa] and ``poisson_ratio``,
         or ``moduli_multiple`` (× φ_s0 μ_s, with an optional
@@ -502,7 +513,7 @@ class CaseParameters:
 
         ``overrides`` maps dotted keys (``"physics.ca"``, ``"geometry.e"``,
         ``"mesh.size_factor"``, ``"case.name"``, ``"case.cell"``) to values that
-        replace those of ``data``; ``None`` values are ignored.  Unknown keys
+        replace those of ``data`` (also ``"case.kinematics"``); ``None`` values are ignored.  Unknown keys
         raise :class:`ParameterError` naming the key.
         """
         d = {k: (dict(v) if isinstance(v, typing.Mapping) else v) for k, v in dict(data).items()}
@@ -534,11 +545,15 @@ class CaseParameters:
                     raise ParameterError(f"unknown key '{table}.{k}' in {source} (known: {allowed})")
             return block
 
-        case_block = take("case", ["name", "cell"])
+        case_block = take("case", ["name", "cell", "kinematics"])
         case = case_block.get("name", "shear")
         if case not in CASES:
             raise ParameterError(f"parameter 'case' = {case!r} is not one of {list(CASES)}")
         with_cell = case_block.get("cell", True)
+        kinematics = case_block.get("kinematics", "finite")
+        if kinematics not in KINEMATICS:
+            raise ParameterError(f"parameter 'kinematics' = {kinematics!r} in {source} is not one of "
+                                 f"{list(KINEMATICS)}")
         physics = take("physics", _field_names(Physics))
         dimensional = take("dimensional", _field_names(Dimensional) + ["V0"])
         V0 = dimensional.pop("V0", None)
@@ -559,7 +574,7 @@ class CaseParameters:
         phys_obj = Physics(**physics)
         dim_obj = Dimensional(**dimensional)
         cell = cls._cell_from_block(cell_block, phys_obj, dim_obj, source)
-        return cls(case=case, with_cell=with_cell, physics=phys_obj, dimensional=dim_obj,
+        return cls(case=case, with_cell=with_cell, kinematics=kinematics, physics=phys_obj, dimensional=dim_obj,
                    cell=cell, geometry=_GEOMETRY[case](**geometry), mesh=MeshSizes(**mesh),
                    coupling=dict(d.get("coupling", {})), time=dict(d.get("time", {})))
 
@@ -608,6 +623,10 @@ class CaseParameters:
     def with_ca(self, value: float) -> "CaseParameters":
         """Change Ca (and hence the flow speed V0) at fixed moduli."""
         return self.replace(physics=dataclasses.replace(self.physics, ca=value))
+
+    def with_kinematics(self, value: str) -> "CaseParameters":
+        """The same case on the ``"finite"`` or the ``"small"`` kinematics path."""
+        return self.replace(kinematics=value)
 
     def with_e(self, value: float) -> "CaseParameters":
         """Move the cell: centre (x_mid, -e) (shear) or (e, 0.5) (normal)."""
@@ -738,7 +757,7 @@ class CaseParameters:
     # ----------------------------------------------------------- serialisation
     def to_input_dict(self) -> dict:
         """The TOML layout of this case; ``from_dict(to_input_dict())`` reproduces it."""
-        return {"case": {"name": self.case, "cell": self.with_cell},
+        return {"case": {"name": self.case, "cell": self.with_cell, "kinematics": self.kinematics},
                 "physics": dataclasses.asdict(self.physics),
                 "dimensional": dataclasses.asdict(self.dimensional),
                 "cell": dataclasses.asdict(self.cell),
@@ -767,7 +786,7 @@ class CaseParameters:
             "brinkman_layer_m": self.brinkman_layer * d.L0, "time_scale_s": d.L0 / self.V0,
             "solver_stress_unit_Pa": d.mu * self.V0 / d.L0,
             "solver_displacement_unit_m": ph.ca * d.L0}
-        return {"case": self.case, "with_cell": self.with_cell,
+        return {"case": self.case, "with_cell": self.with_cell, "kinematics": self.kinematics,
                 "dimensionless": dimensionless, "si": si,
                 "report_units": {k: v[0] for k, v in REPORT_UNITS.items()},
                 "geometry": dataclasses.asdict(self.geometry),

@@ -28,6 +28,14 @@ Conventions of the reported quantities (model.md section 7):
     int_gel (J - 1) + int_cell (J_c - 1); the cell's share is its term over the sum.
     Compression and dilatation largely cancel in it (by ~1e3 at baseline), so
     ``local_volume_change_magnitude`` = int |J - 1| is reported as its scale.
+
+Kinematics.  With ``params.kinematics == "finite"`` stresses are the Cauchy
+stresses of the current configuration (the fluid phase's with spatial
+gradients, gel.lagrangian), the fluid fields live on the fluid's reference
+mesh with ``fluid_mesh_displacement`` mapping it to the current domain, and
+locations and profiles are given at the undeformed coordinates X (as on the
+small-strain path).  ``model.max_displacement_gradient`` is reported on both
+paths: it is the relative size of what the small-strain path neglects.
 """
 
 from __future__ import annotations
@@ -45,6 +53,7 @@ from dolfinx import fem
 
 import cell.forms as cell_forms
 import gel.forms as gel_forms
+import gel.lagrangian as gel_lagrangian
 from femtools.functions import global_max, integrate, interpolate, owned_values, von_mises
 from femtools.interface import InterfaceNodes
 from femtools.transfer import NodalTransfer
@@ -69,6 +78,8 @@ class DeviceFields:
     fluid_tags: typing.Any
     gel_tags: typing.Any
     cell_tags: typing.Any = None
+    #: finite kinematics: the fluid mesh's displacement to the current domain (solver units, d L0)
+    fluid_mesh_displacement: fem.Function | None = None
 
     @property
     def comm(self) -> MPI.Comm:
@@ -81,6 +92,17 @@ class DeviceFields:
     @property
     def cell_mesh(self):
         return None if self.cell_displacement is None else self.cell_displacement.function_space.mesh
+
+    @property
+    def gel_forms(self):
+        """The gel's forms of this case's kinematics: ``gel.forms`` or ``gel.lagrangian``."""
+        return gel_lagrangian if self.params.kinematics == "finite" else gel_forms
+
+    def fluid_stress(self, c: gel_forms.GelCoefficients):
+        """The interstitial fluid's viscous stress sigma_f / s of this case's kinematics (UFL)."""
+        if self.params.kinematics == "finite":
+            return gel_lagrangian.fluid_stress(self.interstitial_velocity, self.displacement, c)
+        return gel_forms.fluid_stress(self.interstitial_velocity, c)
 
     def gel_coefficients(self) -> gel_forms.GelCoefficients:
         p, m = self.params, self.gel_mesh
@@ -102,7 +124,8 @@ def fields_from_device(device) -> DeviceFields:
         interstitial_velocity=gel.interstitial_velocity(), displacement=gel.displacement(),
         pore_pressure=gel.pore_pressure(),
         cell_displacement=None if device.cell is None else device.cell.displacement,
-        fluid_tags=fluid_tags, gel_tags=gel_tags, cell_tags=cell_tags)
+        fluid_tags=fluid_tags, gel_tags=gel_tags, cell_tags=cell_tags,
+        fluid_mesh_displacement=getattr(device.fluid, "mesh_displacement", None))
 
 
 def _region_spaces(msh):
@@ -114,7 +137,8 @@ def fields_from_monolithic(solver, device_mesh, params: CaseParameters) -> Devic
     fluid_mesh, fluid_tags = device_mesh.region("fluid")
     gel_mesh, gel_tags = device_mesh.region("gel")
     out = {}
-    for region, msh, names in (("fluid", fluid_mesh, ("V", "P")), ("gel", gel_mesh, ("v_f", "u", "p"))):
+    fluid_names = ("V", "P", "fluid_motion") if params.kinematics == "finite" else ("V", "P")
+    for region, msh, names in (("fluid", fluid_mesh, fluid_names), ("gel", gel_mesh, ("v_f", "u", "p"))):
         Vv, Vs = _region_spaces(msh)
         for name in names:
             src = solver.field(name)
@@ -129,7 +153,8 @@ def fields_from_monolithic(solver, device_mesh, params: CaseParameters) -> Devic
         u_c = NodalTransfer(src.function_space, Vv).apply(src, fem.Function(Vv, name="u_c"))
     return DeviceFields(params=params, fluid_velocity=out["V"], fluid_pressure=out["P"],
                         interstitial_velocity=out["v_f"], displacement=out["u"], pore_pressure=out["p"],
-                        cell_displacement=u_c, fluid_tags=fluid_tags, gel_tags=gel_tags, cell_tags=cell_tags)
+                        cell_displacement=u_c, fluid_tags=fluid_tags, gel_tags=gel_tags, cell_tags=cell_tags,
+                        fluid_mesh_displacement=out.get("fluid_motion"))
 
 
 # -- evaluation helpers ----------------------------------------------------------
@@ -213,7 +238,7 @@ class DeviceQuantities:
         self._area = {"gel": _assemble(self._forms["area_gel"], comm), "cell": 0.0}
         self._phi_s = gel_forms.solid_fraction(u, c)
         self._sigma_s = gel_forms.network_stress(u, c)
-        self._sigma_f = gel_forms.fluid_stress(v_f, c)
+        self._sigma_f = fields.fluid_stress(c)
         self._expressions = {}
         self.cell_points = None
         if fields.cell_displacement is not None:
@@ -299,9 +324,14 @@ class DeviceQuantities:
         vm_network = self._expression("network", von_mises(self._sigma_s))
         _, vm_net_max, vm_net_where = gel_points.extrema(vm_network)
         grad_norm = self._expression("grad", ufl.sqrt(ufl.inner(ufl.grad(u), ufl.grad(u))))
+        finite = p.kinematics == "finite"
         out = {
             "model": {
-                "approximation": "gel on the reference configuration (no mesh motion)",
+                "kinematics": p.kinematics,
+                "approximation": ("finite strain: total Lagrangian gel and cell, the fluid domain following "
+                                  "the gel's surface" if finite else
+                                  "gel on the reference configuration (no mesh motion)"),
+                # the relative size of the geometric terms the small-strain path drops
                 "max_displacement_gradient": d * gel_points.extrema(grad_norm)[1],
             },
             "gel": {
@@ -318,7 +348,7 @@ class DeviceQuantities:
             near = np.linalg.norm(gel_points.points - centre, axis=1) <= radius + 2 * radius * (1 + 1e-9)
             I = ufl.Identity(2)
             parts = {"pressure": -pp * I, "brinkman": (1 - self._phi_s) * self._sigma_f,
-                     "network": self._phi_s * self._sigma_s, "total": gel_forms.total_stress(v_f, u, pp, c)}
+                     "network": self._phi_s * self._sigma_s, "total": f.gel_forms.total_stress(v_f, u, pp, c)}
             out["cell"]["max_traction_von_mises"] = {
                 k: s * gel_points.extrema(self._expression(f"part_{k}", von_mises(e)), near)[1]
                 for k, e in parts.items()}

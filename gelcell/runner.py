@@ -21,7 +21,7 @@ import coupling as cp
 from femtools.io import atomic_directory, check_output_target
 from gelcell.boundaries import device_boundaries
 from gelcell.checks import format_residuals, interface_residuals
-from gelcell.device import Device, coupling_config
+from gelcell.device import Device, coupling_config, default_robin_coefficient
 from gelcell.geometry import build_device
 from gelcell.monolithic import MonolithicCoefficients, MonolithicSolver
 from gelcell.output import write_fields, write_json_file, write_profiles
@@ -46,10 +46,15 @@ def _dofs(space) -> int:
 
 
 def monolithic_coefficients(params: CaseParameters) -> MonolithicCoefficients:
+    """The monolithic reference's coefficients; with finite kinematics its I13 rows are weighted by the
+    partitioned fluid's default Robin coefficient (gelcell.monolithic, docs/finite-strain.md)."""
     ph = params.physics
+    finite = params.kinematics == "finite"
     return MonolithicCoefficients(phi_s0=ph.phi_s0, xi=ph.xi, lambda_s=ph.lambda_s, beta=ph.beta, eta=ph.eta,
                                   Ca=ph.ca, mu_c=params.mu_c, lambda_c=params.lambda_c,
-                                  stress_scale=params.stress_scale, displacement_scale=params.displacement_scale)
+                                  stress_scale=params.stress_scale, displacement_scale=params.displacement_scale,
+                                  kinematics=params.kinematics,
+                                  interface_weight=default_robin_coefficient(params) if finite else None)
 
 
 def partitioned_config(params: CaseParameters, scheme: str = "serial", acceleration: str = "iqn-ils",

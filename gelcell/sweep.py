@@ -4,6 +4,16 @@ A value whose run fails (the coupling diverges, a solver fails, ...) does not
 discard the others: the sweep writes every completed run, lists the failed
 values with their error in sweep.csv/sweep.json, and then raises
 :class:`gelcell.errors.SweepError`.
+
+Beyond linearity (``--param ca``).  At fixed moduli Ca sets the flow speed;
+the flow is Ca-independent in the paper's units and every displacement,
+strain and stress is proportional to Ca as long as the response is linear.
+``linearity.png`` plots a few of them divided by Ca (normalised by their
+value at the smallest Ca, so linear scaling is a flat line at 1) and shows
+where that ends.  ``compare_kinematics`` also runs every value on the other
+kinematics path (``runs/<param>=<value>-small`` or ``-finite``) and records
+``departure``: the largest relative difference of those quantities between
+the small-strain and the finite-strain result (relative to the latter).
 """
 
 from __future__ import annotations
@@ -44,6 +54,18 @@ SWEEP_QUANTITIES = [
 ]
 
 
+#: the quantities of the linearity figure and of the kinematics departure (if present)
+LINEARITY_QUANTITIES = ("max_network_displacement", "max_network_von_mises", "cell_centroid_x",
+                        "cell_von_mises_strain_max", "cell_von_mises_stress_max", "traction_total")
+
+
+def departure(small: dict, finite: dict) -> float | None:
+    """max over LINEARITY_QUANTITIES of |small - finite| / |finite| (None if none is present)."""
+    values = [abs(small[k] - finite[k]) / abs(finite[k]) for k in LINEARITY_QUANTITIES
+              if small.get(k) is not None and finite.get(k) not in (None, 0)]
+    return max(values) if values else None
+
+
 def _row(summary: dict) -> dict:
     row = {}
     for name, key, sub in SWEEP_QUANTITIES:
@@ -74,8 +96,11 @@ def check_distinct(param: str, values: list[float]) -> None:
 def run_sweep(cases: list[CaseParameters], param: str, values: list[float], out: str, *,
               monolithic: bool = False, scheme: str = "serial", acceleration: str = "iqn-ils",
               verbose: bool = False, comm: MPI.Comm = MPI.COMM_WORLD, gamma2: str = "dirichlet",
-              debug: bool = False) -> list[dict]:
+              debug: bool = False, compare_kinematics: bool = False) -> list[dict]:
     """Run every case; write sweep.csv/json, sweep.png and runs/<param>=<value>/summary.json.
+
+    ``param == "ca"`` also draws linearity.png; ``compare_kinematics`` runs each value on the other
+    kinematics path too (module docstring).
 
     Values must be distinct (:func:`check_distinct`).  A value that fails is
     recorded (``status`` "failed", ``error``) and the sweep goes on; if any
@@ -88,10 +113,13 @@ def run_sweep(cases: list[CaseParameters], param: str, values: list[float], out:
     with atomic_directory(out, comm) as tmp:
         for value, params in zip(values, cases):
             name = run_name(param, value)
+            other = ("small" if params.kinematics == "finite" else "finite") if compare_kinematics else None
+            runs = [(name, params)] + ([(f"{name}-{other}", params.with_kinematics(other))] if other else [])
             try:
-                summary = run_case(params, os.path.join(tmp, "runs", name), monolithic=monolithic, scheme=scheme,
-                                   acceleration=acceleration, comm=comm, verbose=verbose, figures=False,
-                                   fields=False, gamma2=gamma2, shown_path=os.path.join(final, "runs", name))
+                summaries = [run_case(p, os.path.join(tmp, "runs", n), monolithic=monolithic, scheme=scheme,
+                                      acceleration=acceleration, comm=comm, verbose=verbose, figures=False,
+                                      fields=False, gamma2=gamma2, shown_path=os.path.join(final, "runs", n))
+                             for n, p in runs]
             except Exception as exc:  # noqa: BLE001  (one failed value must not discard the others)
                 if comm.rank == 0:
                     if debug:
@@ -100,7 +128,14 @@ def run_sweep(cases: list[CaseParameters], param: str, values: list[float], out:
                 failures.append((value, message(exc), exit_code(exc)))
                 rows.append({param: value, "status": "failed", "error": message(exc)})
                 continue
-            rows.append({param: value, "status": "ok", "error": "", **_row(summary)})
+            row = {param: value, "status": "ok", "error": "", "kinematics": params.kinematics,
+                   **_row(summaries[0])}
+            if other:
+                names = {n for n, _, _ in SWEEP_QUANTITIES} | {"iterations"}
+                row.update({f"{other}.{k}": v for k, v in _row(summaries[1]).items() if k in names})
+                by_path = {params.kinematics: _row(summaries[0]), other: _row(summaries[1])}
+                row["departure"] = departure(by_path["small"], by_path["finite"])
+            rows.append(row)
         write_json_file(os.path.join(tmp, "sweep.json"), rows, comm)
         if comm.rank == 0:
             with open(os.path.join(tmp, "sweep.csv"), "w", newline="") as f:
@@ -110,9 +145,12 @@ def run_sweep(cases: list[CaseParameters], param: str, values: list[float], out:
             done = [r for r in rows if r["status"] == "ok"]
             if done:
                 _plot(os.path.join(tmp, "sweep.png"), done, param, cases[0])
+                if param == "ca":
+                    _plot_linearity(os.path.join(tmp, "linearity.png"), done, cases[0])
     if comm.rank == 0:
         print(f"gelcell sweep: wrote {final}: sweep.csv, sweep.json"
               + (", sweep.png" if len(failures) < len(values) else "")
+              + (", linearity.png" if len(failures) < len(values) and param == "ca" else "")
               + f", runs/ ({len(values) - len(failures)} of {len(values)} values)", flush=True)
     if failures:
         raise SweepError(f"{len(failures)} of {len(values)} values failed ("
@@ -145,6 +183,48 @@ def _plot(path: str, rows: list[dict], param: str, params: CaseParameters) -> No
     for ax in axes.ravel()[len(names):]:
         ax.axis("off")
     fig.suptitle(f"{params.case} flow: summary quantities (paper's dimensionless units) against {param}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def _plot_linearity(path: str, rows: list[dict], params: CaseParameters) -> None:
+    """Quantities / Ca, normalised at the smallest Ca, against Ca; the kinematics departure if compared."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    rows = sorted(rows, key=lambda r: r["ca"])
+    ca = np.array([r["ca"] for r in rows], dtype=float)
+    main = rows[0].get("kinematics", params.kinematics)
+    other = "small" if main == "finite" else "finite"
+    names = [n for n in LINEARITY_QUANTITIES if all(r.get(n) not in (None, 0) for r in rows)]
+    compared = any(r.get("departure") is not None for r in rows)
+    fig, axes = plt.subplots(1, 2 if compared else 1, figsize=(12 if compared else 7, 4.5), squeeze=False)
+    ax = axes[0, 0]
+    for k, name in enumerate(names):
+        y = np.array([r[name] for r in rows], dtype=float) / ca
+        line, = ax.plot(ca, np.abs(y / y[0]), "o-", label=f"{name} ({main})")
+        if compared and all(r.get(f"{other}.{name}") is not None for r in rows):
+            y2 = np.array([r[f"{other}.{name}"] for r in rows], dtype=float) / ca
+            ax.plot(ca, np.abs(y2 / y[0]), "x--", color=line.get_color(), alpha=0.7, label=f"{name} ({other})")
+    ax.axhline(1.0, color="k", lw=0.8)
+    ax.set_xscale("log")
+    ax.set_xlabel("Ca")
+    ax.set_ylabel("(quantity / Ca) / (its value at the smallest Ca)")
+    ax.set_title("linear scaling: flat at 1", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    if compared:
+        ax = axes[0, 1]
+        dep = np.array([np.nan if r.get("departure") is None else r["departure"] for r in rows], dtype=float)
+        ax.loglog(ca, dep, "o-", label="max relative difference, small vs finite")
+        for level in (0.01, 0.1):
+            ax.axhline(level, color="k", ls=":", lw=0.8)
+        ax.set_xlabel("Ca")
+        ax.set_title("departure of the small-strain result from the finite-strain one", fontsize=10)
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=8)
+    fig.suptitle(f"{params.case} flow{' with the cell' if params.with_cell else ''}: where linear scaling ends")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

@@ -131,7 +131,8 @@ class MonolithicBackend:
     def _region_fields(self) -> DeviceFields:
         from dolfinx import fem
         out = {}
-        regions = [("fluid", ("V", "P")), ("gel", ("v_f", "u", "p"))]
+        fluid = ("V", "P", "fluid_motion") if self.params.kinematics == "finite" else ("V", "P")
+        regions = [("fluid", fluid), ("gel", ("v_f", "u", "p"))]
         if self.params.with_cell:
             regions.append(("cell", ("u",)))
         tags = {}
@@ -147,7 +148,8 @@ class MonolithicBackend:
         return DeviceFields(params=self.params, fluid_velocity=out["fluid/V"], fluid_pressure=out["fluid/P"],
                             interstitial_velocity=out["gel/v_f"], displacement=out["gel/u"],
                             pore_pressure=out["gel/p"], cell_displacement=out.get("cell/u"),
-                            fluid_tags=tags["fluid"], gel_tags=tags["gel"], cell_tags=tags.get("cell"))
+                            fluid_tags=tags["fluid"], gel_tags=tags["gel"], cell_tags=tags.get("cell"),
+                            fluid_mesh_displacement=out.get("fluid/fluid_motion"))
 
     def update_fields(self) -> None:
         f = self.fields
@@ -155,6 +157,8 @@ class MonolithicBackend:
                    "gel/u": f.displacement, "gel/p": f.pore_pressure}
         if f.cell_displacement is not None:
             targets["cell/u"] = f.cell_displacement
+        if f.fluid_mesh_displacement is not None:
+            targets["fluid/fluid_motion"] = f.fluid_mesh_displacement
         cache = {}
         for key, dst in targets.items():
             name = key.split("/")[1]
@@ -178,8 +182,7 @@ class MonolithicBackend:
 
     def _canonical(self):
         if not hasattr(self, "_orders"):
-            from gelcell.monolithic import FIELDS
-            self._orders = (MixedCanonical(self.solver.W, FIELDS),
+            self._orders = (MixedCanonical(self.solver.W, self.solver.field_names),
                             CanonicalOrder(self.solver.history.past[0].function_space))
         return self._orders
 
@@ -427,6 +430,8 @@ def _frame_functions(fields: DeviceFields) -> dict:
            "pore_pressure": fields.pore_pressure}
     if fields.cell_displacement is not None:
         out["cell_displacement"] = fields.cell_displacement
+    if fields.fluid_mesh_displacement is not None:
+        out["fluid_mesh_displacement"] = fields.fluid_mesh_displacement
     return out
 
 
