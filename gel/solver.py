@@ -144,6 +144,13 @@ class PoroelasticGelSolver(FieldSolver):
         transient: build the time-dependent forms (v_s from the displacement
             history, see the module docstring); the solver is steady until
             ``set_time_step`` is called.
+        linear_path: each ``solve()`` takes one step with the kept
+            linearisation at rest and the current interface data, and goes on
+            to the exact Newton solution only if the nonlinear remainder
+            matters (``femtools.linalg.NewtonSolver.solve``).  Exact for a
+            linear problem; for a coupling loop whose every solve continues
+            from the previous state (a steady partitioned run), the remainder
+            converges with the coupling.  Default: the exact path.
 
     Example::
 
@@ -167,7 +174,7 @@ class PoroelasticGelSolver(FieldSolver):
                  tractions: typing.Iterable[tuple] = (),
                  body_forces=None, name: str = "gel", quadrature_degree: int = 4,
                  petsc_options: dict | None = None, newton_rtol: float = 1e-11,
-                 transient: bool = False):
+                 transient: bool = False, linear_path: bool = False):
         t0 = time.perf_counter()
         super().__init__()
         if not isinstance(params, GelParameters):
@@ -202,21 +209,30 @@ class PoroelasticGelSolver(FieldSolver):
         rel, u, p = ufl.split(self.state)
         w, z, q = ufl.TestFunctions(self.W)
         v_f = rel + self.v_s if self.transient else rel
-        F = forms.bulk_residual(v_f, u, p, w, z, q, self.coefficients, self.dx, body_forces, self.v_s)
+        # the residual in two parts: the bulk (depends on the state only) and the interface and
+        # load terms (cheap boundary integrals, the only part that changes with the coupling data)
+        F_state = forms.bulk_residual(v_f, u, p, w, z, q, self.coefficients, self.dx, body_forces, self.v_s)
+        F_data = 0
         for iname, tags in fluid_interfaces.items():
-            F += self._add_fluid_interface(iname, tags)
+            F_data += self._add_fluid_interface(iname, tags)
         for iname, tags in cell_interfaces.items():
             self._add_cell_interface(iname, tags)
-        F += self._add_tractions(tractions, z)
+        F_data += self._add_tractions(tractions, z)
         self.bcs = self._build_bcs(no_slip, symmetry, dirichlet)
+        F = F_state + F_data
         self.residual_form = F
         options = dict(DEFAULT_PETSC_OPTIONS, **(petsc_options or {}))
         # the kept Jacobian is the linearisation at rest (no state, no interface data): the same matrix
         # whenever it is needed, e.g. after a restart; the exact one takes over at large loads
         data = [d[k] for d in self._fluid.values() for k in ("T", "V")]
         data += list(self.history.past) if self.transient else []
-        self._newton = NewtonSolver(F, self.state, self.bcs, name=name, rtol=newton_rtol, reuse="adaptive",
-                                    petsc_options=options, J_reference=jacobian_at_rest(F, self.state, data))
+        # at rest (steady) the flow's equations do not contain u: the linearisation is block
+        # lower-triangular in ((w, p), u) and is factorised block by block (checked when assembled)
+        flow = np.hstack([self._sub[0][1], self._sub[2][1]])
+        self._newton = NewtonSolver(F_state, self.state, self.bcs, name=name, rtol=newton_rtol, reuse="adaptive",
+                                    petsc_options=options, J_reference=jacobian_at_rest(F, self.state, data),
+                                    F_data=F_data, reference_blocks=[flow, self._sub[1][1]])
+        self.linear_path = bool(linear_path)
         self._build_postprocessing()
         self.timing["setup"] = time.perf_counter() - t0
         self.timing["newton_iterations"] = 0
@@ -494,7 +510,7 @@ class PoroelasticGelSolver(FieldSolver):
         vals = [d["force"][d["rows"]].ravel() for d in self._cell.values()]
         self._newton.set_nodal_loads(np.hstack(dofs).astype(np.int32) if dofs else np.empty(0, np.int32),
                                      np.hstack(vals) if vals else np.empty(0))
-        its = self._newton.solve()
+        its = self._newton.solve(linear_path=self.linear_path)
         if self.transient:
             self._update_velocity()
         self.timing["newton_iterations"] += its
