@@ -136,7 +136,8 @@ def _fluid_interface_residuals(fields: DeviceFields, name: str, tag: int) -> dic
     Vfl = V_f.function_space
     dxf = ufl.Measure("dx", domain=Vfl.mesh, metadata={"quadrature_degree": 4})
     vt = ufl.TestFunction(Vfl)
-    R_fluid = _reaction(fluid_forms.bulk_residual(V_f, P_f, vt, 0, visc, dxf), Vfl)
+    # numbers enter the forms as Constants: no parameter value (nor the normal's round-off) compiles anything
+    R_fluid = _reaction(fluid_forms.bulk_residual(V_f, P_f, vt, 0, fem.Constant(Vfl.mesh, visc), dxf), Vfl)
     fluid_nodes = InterfaceNodes(Vfl, fields.fluid_tags, tag)
     t_fluid = fluid_nodes.from_array(R_fluid.array)
     Vg = v_f.function_space
@@ -161,7 +162,8 @@ def _fluid_interface_residuals(fields: DeviceFields, name: str, tag: int) -> dic
     gel_nodes.to_function(np.column_stack([proj.of_nodal_load(-t_fluid[:, i]) for i in range(2)]), T)
     N_load = T_gel_load - F_f_load        # network partial traction, tested
     n, tau = _interface_frame(proj)
-    nn, tt = ufl.as_vector(n.tolist()), ufl.as_vector(tau.tolist())
+    nn, tt = fem.Constant(gm, n), fem.Constant(gm, tau)
+    visc = fem.Constant(gm, visc)
     phi_s = gel_forms.solid_fraction(u, c)
     tested = proj.tested
     terms = {
