@@ -248,6 +248,14 @@ def _assemble_and_factorize(A: PETSc.Mat, form, bcs, solver: DirectSolver, stats
     return operator
 
 
+def _bc_values(bc) -> np.ndarray:
+    """The values of a Dirichlet condition (its Function's array or its Constant's value)."""
+    g = bc.g
+    if hasattr(g, "x"):
+        return g.x.array
+    return np.asarray(g.value if hasattr(g, "value") else g)
+
+
 def direct_solver(comm: MPI.Comm, A: PETSc.Mat, name: str, petsc_options: dict | None = None) -> DirectSolver:
     """A factorised :class:`DirectSolver` for ``A``."""
     solver = DirectSolver(comm, name, petsc_options)
@@ -264,9 +272,9 @@ def _nan_check(vec: PETSc.Vec, what: str) -> None:
 class LinearSolver:
     """Solve ``a(u, v) = L(v)`` with Dirichlet ``bcs``; assemble and factorise ``a`` once.
 
-    ``solve()`` re-assembles only ``L`` (and the lifting of the current
-    Dirichlet values), so changing coefficients of ``L`` or Dirichlet data
-    between calls is cheap.  Call ``update_operator()`` if ``a`` changed.
+    ``solve()`` re-assembles only ``L`` (and the lifting of the Dirichlet
+    values when they changed), so changing coefficients of ``L`` or Dirichlet
+    data between calls is cheap.  Call ``update_operator()`` if ``a`` changed.
     """
 
     def __init__(self, a: ufl.Form, L: ufl.Form, u: fem.Function, bcs: list, name: str = "linear",
@@ -279,6 +287,8 @@ class LinearSolver:
         comm = u.function_space.mesh.comm
         self.A = fem_petsc.create_matrix(self.a)
         self.b = fem_petsc.create_vector(self.L)
+        self._lift = fem_petsc.create_vector(self.L)      # - A g of the Dirichlet values g (owned entries)
+        self._lift_key: list[np.ndarray] | None = None
         self.solver = DirectSolver(comm, name, petsc_options)
         self.ksp = self.solver.ksp
         self._operator_ready = False
@@ -287,14 +297,31 @@ class LinearSolver:
         """Re-assemble the matrix and factorise it."""
         _assemble_and_factorize(self.A, self.a, self.bcs, self.solver, self.stats)
         self._operator_ready = True
+        self._lift_key = None
+
+    def _lifting(self) -> PETSc.Vec:
+        """The lifting of the Dirichlet values, re-assembled only when they (or the operator) changed."""
+        key = [_bc_values(bc) for bc in self.bcs]
+        same = self._lift_key is not None and all(np.array_equal(a, b) for a, b in zip(key, self._lift_key))
+        comm = self.u.function_space.mesh.comm
+        if comm.size > 1:
+            same = comm.allreduce(same, op=MPI.LAND)
+        if not same:
+            with self._lift.localForm() as loc:
+                loc.set(0.0)
+            fem_petsc.apply_lifting(self._lift, [self.a], bcs=[self.bcs])
+            self._lift.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+            self._lift_key = [k.copy() for k in key]
+        return self._lift
 
     def assemble_rhs(self) -> PETSc.Vec:
         """Right-hand side with the current Dirichlet values lifted and set."""
+        lift = self._lifting()
         with self.b.localForm() as loc:
             loc.set(0.0)
         fem_petsc.assemble_vector(self.b, self.L)
-        fem_petsc.apply_lifting(self.b, [self.a], bcs=[self.bcs])
         self.b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        self.b.axpy(1.0, lift)
         fem_petsc.set_bc(self.b, self.bcs)
         return self.b
 

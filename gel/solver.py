@@ -368,6 +368,14 @@ class PoroelasticGelSolver(FieldSolver):
         self._phi_f_den = fem.form(psi * ds_all)
         self._p_expr = fem.Expression(p, self.Q2.element.interpolation_points())
         self._p2 = fem.Function(self.Q2)
+        # the nodal pressure is read on the fluid interfaces only: interpolate on their cells
+        tdim = self.mesh.topology.dim
+        self.mesh.topology.create_connectivity(tdim - 1, tdim)
+        f2c = self.mesh.topology.connectivity(tdim - 1, tdim)
+        facets = [self.facet_tags.find(t) for d in self._fluid.values() for t in d["tags"]]
+        facets = np.unique(np.hstack(facets + [np.empty(0, np.int32)])).astype(np.int32)
+        self._interface_cells = np.unique(np.hstack([f2c.links(f) for f in facets] + [np.empty(0, np.int32)])
+                                          ).astype(np.int32)
 
     def _check_tags(self, tags, what: str) -> tuple[int, ...]:
         tags = _as_tags(tags, what)
@@ -568,7 +576,7 @@ class PoroelasticGelSolver(FieldSolver):
         return a / b
 
     def _pressure_nodal(self, scalar_nodes: InterfaceNodes) -> np.ndarray:
-        self._p2.interpolate(self._p_expr)
+        self._p2.interpolate(self._p_expr, cells=self._interface_cells)
         return scalar_nodes.from_function(self._p2)
 
     # -- accessors ---------------------------------------------------------
