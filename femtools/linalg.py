@@ -248,6 +248,12 @@ def _assemble_and_factorize(A: PETSc.Mat, form, bcs, solver: DirectSolver, stats
     return operator
 
 
+def _unchanged(key: list[np.ndarray], old: list[np.ndarray] | None, comm: MPI.Comm) -> bool:
+    """True on every rank if the arrays ``key`` equal the stored copies ``old`` on every rank."""
+    same = old is not None and len(key) == len(old) and all(np.array_equal(a, b) for a, b in zip(key, old))
+    return comm.allreduce(same, op=MPI.LAND) if comm.size > 1 else same
+
+
 def _bc_values(bc) -> np.ndarray:
     """The values of a Dirichlet condition (its Function's array or its Constant's value)."""
     g = bc.g
@@ -302,11 +308,7 @@ class LinearSolver:
     def _lifting(self) -> PETSc.Vec:
         """The lifting of the Dirichlet values, re-assembled only when they (or the operator) changed."""
         key = [_bc_values(bc) for bc in self.bcs]
-        same = self._lift_key is not None and all(np.array_equal(a, b) for a, b in zip(key, self._lift_key))
-        comm = self.u.function_space.mesh.comm
-        if comm.size > 1:
-            same = comm.allreduce(same, op=MPI.LAND)
-        if not same:
+        if not _unchanged(key, self._lift_key, self.u.function_space.mesh.comm):
             with self._lift.localForm() as loc:
                 loc.set(0.0)
             fem_petsc.apply_lifting(self._lift, [self.a], bcs=[self.bcs])
@@ -534,10 +536,7 @@ class NewtonSolver:
         return [f.x.array for f in functions] + [np.asarray(c.value) for c in constants]
 
     def _same_key(self, key: list[np.ndarray], other: list[np.ndarray] | None) -> bool:
-        """True on every rank if ``key`` equals ``other`` on every rank."""
-        same = other is not None and all(np.array_equal(a, b) for a, b in zip(key, other))
-        comm = self.u.function_space.mesh.comm
-        return comm.allreduce(same, op=MPI.LAND) if comm.size > 1 else same
+        return _unchanged(key, other, self.u.function_space.mesh.comm)
 
     def state_residual(self) -> PETSc.Vec:
         """The state part F(u) without boundary conditions or loads (owned entries; do not modify).
