@@ -80,6 +80,8 @@ class DirectSolver:
         options.pop("ksp_type", None)
         options.pop("pc_type", None)
         self.icntl = dict(DEFAULT_ICNTL)
+        if comm.size > 1:
+            self.icntl[20] = 10         # distributed right-hand side: no gather onto the host before each solve
         for key in list(options):
             m = _ICNTL.match(key)
             if m:
