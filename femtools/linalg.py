@@ -348,7 +348,9 @@ class NewtonSolver:
     """Newton's method for ``F(u; v) = 0`` with the exact Jacobian ``J = dF/du``.
 
     Converged when the correction satisfies ``|du| <= rtol |u|`` (a relative,
-    scale-free criterion: the device unknowns are O(1e-6) in paper units).
+    scale-free criterion: the device unknowns are O(1e-6) in paper units), or
+    when the contraction of the iteration says that the error left is below
+    it (see "Convergence" below).
 
     Jacobian reuse (``reuse``):
       * ``"never"``: full Newton, a new factorisation every iteration;
