@@ -72,7 +72,7 @@ def measure_partitioned(p, comm) -> dict:
     return {"kind": "partitioned", "ranks": comm.size, "dofs": dofs, "iterations": result.iterations,
             "converged": result.converged, "setup": t1 - t0, "solves_total": t2 - t1,
             "field_time": dict(result.timing), "factor_time": factor,
-            "gel_linear_steps": gel["linear_steps"], "gel_newton_iterations": gel["newton_iterations"]}
+            "gel_linear_steps": gel.get("linear_steps"), "gel_newton_iterations": gel["newton_iterations"]}
 
 
 def measure_monolithic(p, comm) -> dict:
