@@ -122,6 +122,28 @@ def run_child(kind: str, mesh_size: float, ranks: int, timeout: float, **moduli)
     return out
 
 
+def _available_mib() -> float:
+    """MemAvailable of /proc/meminfo (inf where unknown)."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return float("inf")
+
+
+def _predicted_monolithic_mib(previous: list[dict], row: dict) -> float:
+    """Peak memory of the monolithic run, from the last measured one times the growth of the dofs^1.15."""
+    done = [r for r in previous if "peak_mib" in r["monolithic"] and "dofs" in r["partitioned"]]
+    if not done or "dofs" not in row["partitioned"]:
+        return 0.0
+    last = done[-1]
+    ratio = sum(row["partitioned"]["dofs"].values()) / sum(last["partitioned"]["dofs"].values())
+    return last["monolithic"]["peak_mib"] * ratio ** 1.15
+
+
 def fit_exponent(dofs, times) -> float:
     """k of time ~ dofs^k, least squares in log-log."""
     x, y = np.log(np.asarray(dofs, float)), np.log(np.asarray(times, float))
@@ -197,8 +219,14 @@ def main(argv=None) -> int:
     sizes_rows, iteration_rows = [], []
     for size in args.sizes:
         row = {"mesh_size": size, "partitioned": run_child("partitioned", size, args.ranks, args.timeout)}
-        row["monolithic"] = ({"error": "skipped"} if args.no_monolithic
-                             else run_child("monolithic", size, args.ranks, args.timeout))
+        need = _predicted_monolithic_mib(sizes_rows, row)
+        if args.no_monolithic:
+            row["monolithic"] = {"error": "skipped"}
+        elif need > 0.8 * _available_mib():
+            row["monolithic"] = {"error": f"skipped: needs about {need / 1024:.1f} GiB (extrapolated), "
+                                          f"{_available_mib() / 1024:.1f} GiB available"}
+        else:
+            row["monolithic"] = run_child("monolithic", size, args.ranks, args.timeout)
         sizes_rows.append(row)
         print(f"mesh size {size:g}: done", file=sys.stderr, flush=True)
     if not args.no_iterations:
