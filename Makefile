@@ -1,6 +1,7 @@
 # gelcell: two commands do everything on a fresh Debian 12 machine.
 #   make run   - install what is missing, run the shear-flow baseline with a cell
 #   make test  - install what is missing, run the test suite (serial + 2 MPI ranks)
+#   make benchmark - performance tables (benchmarks/performance.py; BENCHMARK_ARGS="--sizes 1 0.5")
 
 VENV      := .venv
 PY        := $(VENV)/bin/python
@@ -31,8 +32,10 @@ test: setup
 	$(PY) -m pytest -q -ra --durations=15
 	./scripts/pytest-2-ranks
 
+# performance tables of the shear baseline (timings printed, never asserted), then the timing tests
 benchmark: setup
-	$(PY) -m pytest -q -m benchmark
+	$(PY) benchmarks/performance.py $(BENCHMARK_ARGS)
+	$(PY) -m pytest -q -s -m benchmark
 
 clean:
 	rm -rf $(VENV) results .pytest_cache

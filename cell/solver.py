@@ -99,6 +99,12 @@ class NeoHookeanCellSolver(FieldSolver):
         rigid_mode_rtol: with ``remove_rigid_modes``, the largest resultant
             (force and moment) the point constraints may carry, relative to
             the total applied load, before ``solve`` raises.
+        linear_path: each ``solve()`` takes one step with the kept
+            linearisation at rest and goes on to the exact Newton solution
+            only if the nonlinear remainder matters (see
+            ``femtools.linalg.NewtonSolver.solve``): exact for a linear
+            problem, and in a coupling loop whose solves continue from the
+            previous state the remainder converges with the coupling.
 
     Rigid-body modes.  A cell loaded by tractions only floats: its tangent
     stiffness has the rigid modes (two translations, one rotation) as null
@@ -142,7 +148,8 @@ class NeoHookeanCellSolver(FieldSolver):
                  symmetry: typing.Sequence = (), dirichlet: typing.Sequence = (),
                  tractions: typing.Sequence = (), remove_rigid_modes: bool = False,
                  name: str = "cell", quadrature_degree: int = 4, petsc_options: dict | None = None,
-                 newton_rtol: float = 1e-11, reuse: str = "adaptive", rigid_mode_rtol: float = 1e-6):
+                 newton_rtol: float = 1e-11, reuse: str = "adaptive", rigid_mode_rtol: float = 1e-6,
+                 linear_path: bool = False):
         super().__init__()
         t0 = time.perf_counter()
         self.name = str(name)
@@ -177,9 +184,8 @@ class NeoHookeanCellSolver(FieldSolver):
         self.ds = quadrature_measure("ds", mesh, facet_tags, degree=self.quadrature_degree)
 
         internal = forms.residual(self.u, v, self._mu, self._lmbda, self._d, self._s, self.dx)
-        self._internal_form = fem.form(internal)
         self._tractions: list[tuple[list[int], object]] = []
-        F = internal
+        F_data = 0           # the boundary terms carrying data (Robin springs, dead loads)
         external = None
         for k, entry in enumerate(tractions):
             tags, value = _unpack(entry, 2, f"tractions[{k}]")
@@ -205,9 +211,9 @@ class NeoHookeanCellSolver(FieldSolver):
                                   "dofs": nodes.dofs()[owned_rows], "rows": nodes.index[owned_rows]}
             self._add_interface(iname, nodes, {"displacement": 2, "force": 2})
         if self._robin:
-            F = F + internal_robin
+            F_data = F_data + internal_robin
         if external is not None:
-            F = F - external
+            F_data = F_data - external
             self._external_form = fem.form(external)
         else:
             self._external_form = None
@@ -253,8 +259,12 @@ class NeoHookeanCellSolver(FieldSolver):
             bcs += pin_bcs
         self.bcs = bcs
         # kept Jacobian: the linearisation at rest (the same matrix whenever assembled; exact at large strain)
-        self._newton = NewtonSolver(F, self.u, bcs, name=self.name, rtol=newton_rtol, reuse=reuse,
-                                    petsc_options=petsc_options, J_reference=jacobian_at_rest(F, self.u))
+        # the state part is the internal force: its assembly at the solution is also the "force" output
+        self._newton = NewtonSolver(internal, self.u, bcs, name=self.name, rtol=newton_rtol, reuse=reuse,
+                                    petsc_options=petsc_options,
+                                    J_reference=jacobian_at_rest(internal + F_data, self.u), F_data=F_data)
+        self._internal_form = self._newton.F
+        self.linear_path = bool(linear_path)
         self._compiled: dict[str, object] = {}
         self.timing["setup"] = time.perf_counter() - t0
 
@@ -346,7 +356,7 @@ class NeoHookeanCellSolver(FieldSolver):
         g.x.scatter_forward()
 
     def _solve(self) -> None:
-        iterations = self._newton.solve()
+        iterations = self._newton.solve(linear_path=self.linear_path)
         logger.debug("%s: Newton converged in %d iterations, corrections %s", self.name, iterations,
                      self._newton.history)
         if self._pins is not None:
@@ -355,11 +365,7 @@ class NeoHookeanCellSolver(FieldSolver):
     def interface_data(self, name: str) -> dict[str, np.ndarray]:
         """``{"force": (N, 2)}``: nodal forces on the cell (units s * L0), see the class docstring."""
         nodes = self.interface_nodes(name)
-        R = assemble_residual_vector(self._internal_form)
-        try:
-            out = {"force": nodes.from_array(R.array)}
-        finally:
-            R.destroy()
+        out = {"force": nodes.from_array(self._newton.state_residual().array)}
         if name in self._robin:
             out["displacement"] = nodes.from_function(self.u)
         return out
@@ -381,12 +387,13 @@ class NeoHookeanCellSolver(FieldSolver):
     # -- rigid modes -------------------------------------------------------------
     def _check_rigid_modes(self) -> None:
         """Measure what the pins carry; raise if the load was not self-equilibrated."""
-        r = assemble_residual_vector(self._newton.F)      # F_int - F_ext, no bcs: pin reactions
         f = assemble_residual_vector(self._external_form) if self._external_form else None
+        r = self._newton.state_residual().array.copy()      # F_int - F_ext, no bcs: pin reactions
+        if f is not None:
+            r -= f.array
         p = self._pins
-        loc = np.array([r.array[p["ax"]].sum(), r.array[p["ay"]].sum(), r.array[p["by"]].sum(),
+        loc = np.array([r[p["ax"]].sum(), r[p["ay"]].sum(), r[p["by"]].sum(),
                         np.abs(f.array).sum() if f is not None else 0.0])
-        r.destroy()
         if f is not None:
             f.destroy()
         ax, ay, by, load = self.comm.allreduce(loc, op=MPI.SUM)
@@ -528,9 +535,7 @@ class NeoHookeanCellSolver(FieldSolver):
         facets = self._facets(tags, "boundary_force")
         blocks = fem.locate_dofs_topological(self.V, self._fdim, facets)
         blocks = blocks[blocks < self.V.dofmap.index_map.size_local]
-        R = assemble_residual_vector(self._internal_form)
-        local = R.array.reshape(-1, 2)[blocks].sum(axis=0)
-        R.destroy()
+        local = self._newton.state_residual().array.reshape(-1, 2)[blocks].sum(axis=0)
         return self.comm.allreduce(local, op=MPI.SUM) if self.comm.size > 1 else local
 
 

@@ -12,13 +12,17 @@ from __future__ import annotations
 import typing
 
 import numpy as np
+import scipy.sparse
+import scipy.sparse.linalg
 import scipy.spatial
 
 from mpi4py import MPI
 
+import ufl
 from dolfinx import fem
+from dolfinx.fem import petsc as fem_petsc
 
-__all__ = ["InterfaceNodes"]
+__all__ = ["InterfaceNodes", "InterfaceMass"]
 
 
 class InterfaceNodes:
@@ -121,3 +125,61 @@ class InterfaceNodes:
     def to_function(self, values: np.ndarray, u: fem.Function) -> None:
         """Set ``u`` at the interface nodes (owned and ghost) from replicated ``values``."""
         self.to_array(values, u.x.array)
+
+
+class InterfaceMass:
+    """The mass matrix of a vector Lagrange space over an interface, on its nodes, and solves with it.
+
+    ``M[(i, c), (j, c)] = int_Gamma phi_i phi_j ds`` over the interface facets of
+    ``measure``, with rows and columns in the order of ``nodes`` (row ``bs i + c``),
+    replicated on every rank.  ``solve(R)`` returns ``lambda`` (N, bs) with
+    ``M_kk lambda_k = R_k`` on the kept components (``keep``, (N, bs) booleans)
+    and ``lambda = 0`` on the others: an L2 projection onto the interface trace,
+    e.g. of a reaction (nodal forces) to a traction.  The system has the size of
+    the interface, not of the mesh; it is factorised once (sparse LU).
+    """
+
+    def __init__(self, nodes: InterfaceNodes, V: fem.FunctionSpace, measure, keep: np.ndarray):
+        comm, bs, n = nodes.comm, nodes.bs, nodes.size
+        lam, s = ufl.TrialFunction(V), ufl.TestFunction(V)
+        A = fem_petsc.assemble_matrix(fem.form(ufl.inner(lam, s) * measure))
+        A.assemble()
+        imap = V.dofmap.index_map
+        comps = np.arange(bs)
+        # global (unrolled) index of every local interface dof, and its row in the interface vector
+        glob = (imap.local_to_global(nodes.local_blocks).astype(np.int64)[:, None] * bs + comps).ravel()
+        row = (nodes.index[:, None] * bs + comps).ravel()
+        keys, rows = (np.hstack(comm.allgather(x)) for x in (glob, row)) if comm.size > 1 else (glob, row)
+        keys, first = np.unique(keys, return_index=True)
+        rows = rows[first]
+        # the owned interface rows of A: their entries in interface (row, column) numbering
+        start = A.getOwnershipRange()[0]
+        indptr, indices, values = A.getValuesCSR()
+        owned = np.repeat(nodes.owned, bs)
+        triplets = []
+        for g, r in zip(glob[owned], row[owned]):
+            lo, hi = indptr[g - start], indptr[g - start + 1]
+            cols, vals = indices[lo:hi].astype(np.int64), values[lo:hi]
+            pos = np.searchsorted(keys, cols)
+            on = (pos < keys.size) & (keys[np.minimum(pos, keys.size - 1)] == cols)
+            # the other columns (dofs of the facets' cells off the interface) vanish on the facets
+            triplets.append((np.full(on.sum(), r), rows[pos[on]], vals[on]))
+        A.destroy()
+        local = [np.hstack([t[k] for t in triplets]) if triplets else np.empty(0) for k in range(3)]
+        if comm.size > 1:
+            local = [np.hstack(comm.allgather(x)) for x in local]
+        self.matrix = scipy.sparse.csr_matrix((local[2], (local[0].astype(np.int64), local[1].astype(np.int64))),
+                                              shape=(n * bs, n * bs))
+        self.keep = np.asarray(keep, dtype=bool).reshape(n, bs)
+        self._kept = np.flatnonzero(self.keep.ravel())
+        kept = self.matrix[self._kept][:, self._kept].tocsc()
+        self._lu = scipy.sparse.linalg.splu(kept) if self._kept.size else None
+        self.size = n * bs
+
+    def solve(self, R: np.ndarray) -> np.ndarray:
+        """``lambda`` (N, bs) from the right-hand side ``R`` (N, bs), replicated."""
+        R = np.asarray(R, dtype=float).ravel()
+        out = np.zeros(self.size)
+        if self._lu is not None:
+            out[self._kept] = self._lu.solve(R[self._kept])
+        return out.reshape(self.keep.shape)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import itertools
 import re
 import time
+import typing
 
 import numpy as np
 
@@ -25,7 +26,7 @@ from dolfinx.fem import petsc as fem_petsc
 
 from femtools.errors import NewtonError, SingularSystemError
 
-__all__ = ["DirectSolver", "LinearSolver", "NewtonSolver", "SolverStats", "direct_solver",
+__all__ = ["DirectSolver", "BlockTriangularSolver", "LinearSolver", "NewtonSolver", "SolverStats", "direct_solver",
            "assemble_residual_vector", "global_norm", "jacobian_at_rest", "SingularSystemError",
            "NewtonError"]
 
@@ -44,7 +45,16 @@ class SolverStats(dict):
 
     def __init__(self):
         super().__init__(factorizations=0, solves=0, factor_time=0.0, solve_time=0.0,
-                         assemble_time=0.0, newton_iterations=0, rejected_steps=0)
+                         assemble_time=0.0, newton_iterations=0, rejected_steps=0,
+                         state_assemblies=0, linear_steps=0, linear_fallbacks=0)
+
+
+class FactorizationError(RuntimeError):
+    """A factorisation failed for another reason than a singular matrix (e.g. MUMPS workspace)."""
+
+    def __init__(self, message: str, infog1: int = 0):
+        super().__init__(message)
+        self.infog1 = infog1
 
 
 class DirectSolver:
@@ -57,17 +67,21 @@ class DirectSolver:
     other entry goes to the options database under a unique prefix.
     """
 
-    def __init__(self, comm: MPI.Comm, name: str, options: dict | None = None):
-        self.name = name
+    def __init__(self, comm: MPI.Comm, name: str, options: dict | None = None, kind: str = "lu"):
+        if kind not in ("lu", "cholesky"):
+            raise ValueError(f"kind must be 'lu' or 'cholesky' (LDL^T of a symmetric matrix), got {kind!r}")
+        self.name, self.kind = name, kind
         self.ksp = PETSc.KSP().create(comm)
         self.ksp.setType("preonly")
         pc = self.ksp.getPC()
-        pc.setType("lu")
+        pc.setType(kind)
         options = dict(options or {})
         pc.setFactorSolverType(options.pop("pc_factor_mat_solver_type", "mumps"))
         options.pop("ksp_type", None)
         options.pop("pc_type", None)
         self.icntl = dict(DEFAULT_ICNTL)
+        if comm.size > 1:
+            self.icntl[20] = 10         # distributed right-hand side: no gather onto the host before each solve
         for key in list(options):
             m = _ICNTL.match(key)
             if m:
@@ -86,8 +100,23 @@ class DirectSolver:
             self.ksp.reset()
         self.ksp.setOperators(A)
 
+    #: MUMPS errors that more workspace (ICNTL(14)) cures, e.g. -9 when badly scaled rows delay pivots
+    WORKSPACE_ERRORS = (-8, -9, -11, -14, -15, -17, -20)
+
     def factorize(self) -> None:
-        """(Re)factorise the current operator."""
+        """(Re)factorise the current operator (with more workspace, up to three times, if MUMPS asks)."""
+        for attempt in range(4):
+            try:
+                return self._factorize()
+            except FactorizationError as exc:
+                if attempt == 3 or exc.infog1 not in self.WORKSPACE_ERRORS:
+                    raise
+                self.icntl[14] = 2 * self.icntl.get(14, 20) + 100
+                A = self.ksp.getOperators()[0]
+                self.ksp.reset()
+                self.ksp.setOperators(A)
+
+    def _factorize(self) -> None:
         pc = self.ksp.getPC()
         pc.setFactorSetUpSolverType()
         mumps = pc.getFactorSolverType() == "mumps"
@@ -101,12 +130,99 @@ class DirectSolver:
             F = pc.getFactorMatrix()
             if F.getMumpsInfog(1) == -10 or (self.icntl.get(24) == 1 and F.getMumpsInfog(28) > 0):
                 raise SingularSystemError(self.name, max(F.getMumpsInfog(28), 1))
+            if F.getMumpsInfog(1) < 0:
+                raise FactorizationError(f"{self.name}: MUMPS {self.kind} factorisation failed "
+                                         f"(INFOG(1) = {F.getMumpsInfog(1)}, INFOG(2) = {F.getMumpsInfog(2)})",
+                                         F.getMumpsInfog(1))
 
     def solve(self, b: PETSc.Vec, x: PETSc.Vec) -> None:
         self.ksp.solve(b, x)
         reason = self.ksp.getConvergedReason()
         if reason <= 0:
             raise RuntimeError(f"{self.name}: linear solve failed (PETSc KSP reason {reason})")
+
+
+class BlockTriangularSolver:
+    """Direct solves with a block lower-triangular matrix, by block forward substitution.
+
+    For ``A = [[A00, 0], [A10, A11]]`` (rows and columns split by the index
+    sets ``blocks``): x0 = A00^-1 b0, x1 = A11^-1 (b1 - A10 x0).  Each diagonal
+    block is factorised on its own, by LDL^T (MUMPS Cholesky) if it is
+    symmetric to round-off and by LU otherwise: far less fill, and faster
+    factorisations and back-solves, than one LU of A.  The solution is that of
+    A itself (exact, not a preconditioner).  ``factorize(A)`` first checks that
+    the upper block is zero and returns False, factorising nothing, if it is not.
+    """
+
+    #: relative asymmetry (Frobenius) below which a diagonal block is factorised as symmetric
+    SYMMETRY_TOLERANCE = 1e-12
+
+    def __init__(self, comm: MPI.Comm, name: str, blocks: typing.Sequence[np.ndarray], options: dict | None = None):
+        if len(blocks) != 2:
+            raise ValueError(f"{name}: two blocks are needed, got {len(blocks)}")
+        self.comm, self.name, self.options = comm, name, dict(options or {})
+        blocks = [np.asarray(b, dtype=PETSc.IntType) for b in blocks]
+        self.sets = [PETSc.IS().createGeneral(b, comm=comm) for b in blocks]
+        self._local: list[np.ndarray] | None = None         # owned positions of each block's entries
+        self._global = blocks
+        self.solvers: list[DirectSolver | None] = [None, None]
+        self.diagonal: list[PETSc.Mat | None] = [None, None]
+        self.lower: PETSc.Mat | None = None
+        self._vecs = None
+
+    def _symmetric(self, M: PETSc.Mat) -> bool:
+        T = M.transpose(PETSc.Mat())
+        T.axpy(-1.0, M)
+        asym = T.norm(PETSc.NormType.FROBENIUS)
+        T.destroy()
+        return asym <= self.SYMMETRY_TOLERANCE * M.norm(PETSc.NormType.FROBENIUS)
+
+    def _factorize_block(self, k: int, kind: str) -> None:
+        if self.solvers[k] is None or self.solvers[k].kind != kind:
+            self.solvers[k] = DirectSolver(self.comm, self.name, self.options, kind)    # errors name the field
+        self.solvers[k].set_operator(self.diagonal[k])
+        self.solvers[k].factorize()
+
+    def factorize(self, A: PETSc.Mat) -> bool:
+        """Extract and factorise the diagonal blocks of ``A``; False if ``A`` is not block lower-triangular."""
+        upper = A.createSubMatrix(self.sets[0], self.sets[1])
+        zero = upper.norm(PETSc.NormType.FROBENIUS) == 0.0
+        upper.destroy()
+        if not zero:
+            return False
+        self.lower = A.createSubMatrix(self.sets[1], self.sets[0], submat=self.lower)
+        for k, rows in enumerate(self.sets):
+            block = A.createSubMatrix(rows, rows, submat=self.diagonal[k])
+            kind = "cholesky" if self._symmetric(block) else "lu"
+            if kind == "cholesky":
+                block.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+            self.diagonal[k] = block
+            try:
+                self._factorize_block(k, kind)
+            except FactorizationError:
+                if kind == "lu":
+                    raise
+                # LDL^T of a symmetric indefinite block can fail where LU with pivoting does not
+                # (e.g. MUMPS's workspace with badly scaled rows, INFOG(1) = -9): use LU
+                self._factorize_block(k, "lu")
+        start = A.getOwnershipRange()[0]
+        self._local = [b - start for b in self._global]
+        # right-hand sides and solutions of the blocks, and the work vector A10 x0
+        self._vecs = [(D.createVecLeft(), D.createVecRight()) for D in self.diagonal] + [self.diagonal[1].createVecLeft()]
+        return True
+
+    def solve(self, b: PETSc.Vec, x: PETSc.Vec) -> None:
+        (b0, x0), (b1, x1), work = self._vecs
+        i0, i1 = self._local
+        rhs = b.array_r
+        b0.array[:] = rhs[i0]
+        self.solvers[0].solve(b0, x0)
+        self.lower.mult(x0, work)                 # r1 = b1 - A10 x0
+        b1.array[:] = rhs[i1] - work.array_r
+        self.solvers[1].solve(b1, x1)
+        out = x.array
+        out[i0] = x0.array_r
+        out[i1] = x1.array_r
 
 
 def _assemble_and_factorize(A: PETSc.Mat, form, bcs, solver: DirectSolver, stats: SolverStats,
@@ -134,6 +250,20 @@ def _assemble_and_factorize(A: PETSc.Mat, form, bcs, solver: DirectSolver, stats
     return operator
 
 
+def _unchanged(key: list[np.ndarray], old: list[np.ndarray] | None, comm: MPI.Comm) -> bool:
+    """True on every rank if the arrays ``key`` equal the stored copies ``old`` on every rank."""
+    same = old is not None and len(key) == len(old) and all(np.array_equal(a, b) for a, b in zip(key, old))
+    return comm.allreduce(same, op=MPI.LAND) if comm.size > 1 else same
+
+
+def _bc_values(bc) -> np.ndarray:
+    """The values of a Dirichlet condition (its Function's array or its Constant's value)."""
+    g = bc.g
+    if hasattr(g, "x"):
+        return g.x.array
+    return np.asarray(g.value if hasattr(g, "value") else g)
+
+
 def direct_solver(comm: MPI.Comm, A: PETSc.Mat, name: str, petsc_options: dict | None = None) -> DirectSolver:
     """A factorised :class:`DirectSolver` for ``A``."""
     solver = DirectSolver(comm, name, petsc_options)
@@ -150,9 +280,9 @@ def _nan_check(vec: PETSc.Vec, what: str) -> None:
 class LinearSolver:
     """Solve ``a(u, v) = L(v)`` with Dirichlet ``bcs``; assemble and factorise ``a`` once.
 
-    ``solve()`` re-assembles only ``L`` (and the lifting of the current
-    Dirichlet values), so changing coefficients of ``L`` or Dirichlet data
-    between calls is cheap.  Call ``update_operator()`` if ``a`` changed.
+    ``solve()`` re-assembles only ``L`` (and the lifting of the Dirichlet
+    values when they changed), so changing coefficients of ``L`` or Dirichlet
+    data between calls is cheap.  Call ``update_operator()`` if ``a`` changed.
     """
 
     def __init__(self, a: ufl.Form, L: ufl.Form, u: fem.Function, bcs: list, name: str = "linear",
@@ -165,6 +295,8 @@ class LinearSolver:
         comm = u.function_space.mesh.comm
         self.A = fem_petsc.create_matrix(self.a)
         self.b = fem_petsc.create_vector(self.L)
+        self._lift = fem_petsc.create_vector(self.L)      # - A g of the Dirichlet values g (owned entries)
+        self._lift_key: list[np.ndarray] | None = None
         self.solver = DirectSolver(comm, name, petsc_options)
         self.ksp = self.solver.ksp
         self._operator_ready = False
@@ -173,14 +305,27 @@ class LinearSolver:
         """Re-assemble the matrix and factorise it."""
         _assemble_and_factorize(self.A, self.a, self.bcs, self.solver, self.stats)
         self._operator_ready = True
+        self._lift_key = None
+
+    def _lifting(self) -> PETSc.Vec:
+        """The lifting of the Dirichlet values, re-assembled only when they (or the operator) changed."""
+        key = [_bc_values(bc) for bc in self.bcs]
+        if not _unchanged(key, self._lift_key, self.u.function_space.mesh.comm):
+            with self._lift.localForm() as loc:
+                loc.set(0.0)
+            fem_petsc.apply_lifting(self._lift, [self.a], bcs=[self.bcs])
+            self._lift.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+            self._lift_key = [k.copy() for k in key]
+        return self._lift
 
     def assemble_rhs(self) -> PETSc.Vec:
         """Right-hand side with the current Dirichlet values lifted and set."""
+        lift = self._lifting()
         with self.b.localForm() as loc:
             loc.set(0.0)
         fem_petsc.assemble_vector(self.b, self.L)
-        fem_petsc.apply_lifting(self.b, [self.a], bcs=[self.bcs])
         self.b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        self.b.axpy(1.0, lift)
         fem_petsc.set_bc(self.b, self.bcs)
         return self.b
 
@@ -203,7 +348,9 @@ class NewtonSolver:
     """Newton's method for ``F(u; v) = 0`` with the exact Jacobian ``J = dF/du``.
 
     Converged when the correction satisfies ``|du| <= rtol |u|`` (a relative,
-    scale-free criterion: the device unknowns are O(1e-6) in paper units).
+    scale-free criterion: the device unknowns are O(1e-6) in paper units), or
+    when the contraction of the iteration says that the error left is below
+    it (see "Convergence" below).
 
     Jacobian reuse (``reuse``):
       * ``"never"``: full Newton, a new factorisation every iteration;
@@ -227,20 +374,71 @@ class NewtonSolver:
     ``active_dofs`` (local dof indices) restricts the linear solves to those
     dofs: the others have no equation (e.g. a field outside its subdomain in
     the monolithic system) and keep their value.
+
+    ``reference_blocks`` (optional): two arrays of local dofs splitting the
+    unknowns.  If ``J_reference`` is block lower-triangular in that split
+    (checked whenever it is assembled: the first block's equations do not
+    contain the second block's unknowns, e.g. the gel's flow at rest does not
+    depend on the network displacement), it is solved by block forward
+    substitution (:class:`BlockTriangularSolver`) with a factorisation per
+    diagonal block; otherwise, and for the exact Jacobian, by one LU.
+
+    Cheap residuals.  ``F_data`` (optional) is the part of the residual that
+    carries interface or load data (boundary integrals, cheap to assemble);
+    the residual is ``F + F_data``.  The state part ``F`` (the bulk) is
+    assembled only when the state or one of its coefficients or Constants
+    changed since its last assembly, so a solve that starts where the previous
+    one ended re-assembles only ``F_data``.  The lifting of Dirichlet values is
+    skipped when the iterate already satisfies them (it would add nothing).
+
+    Convergence: ``|du| <= rtol |u|``, or the remaining error estimated from
+    the contraction of the last two corrections, theta / (1 - theta) |du| with
+    theta = |du_k| / |du_(k-1)|, is below ``rtol |u|`` (Newton with a kept
+    Jacobian contracts linearly; this spares the step that would only confirm
+    it).
+
+    The linear path (``solve(linear_path=True)``), for a loop of solves that
+    each continue from the previous one (a steady coupling loop): when the
+    state is still the previous solve's solution (same values of the state
+    and of every coefficient and Constant of ``F``; only ``F_data``, loads or
+    Dirichlet values changed), take ONE step with the kept Jacobian, then
+    test whether the nonlinear remainder matters: the residual at the new
+    iterate relative to the residual the step removed, rho = |F(u_1)| /
+    |F(u_0)|.  For a linear problem rho is round-off and the step is the
+    solution.  For weak nonlinearity (rho <= ``linear_tolerance``) the step
+    is accepted; its error, about rho |du| (measured: a further step
+    contracts by 1-10 rho), is left to the loop: the next solve starts from
+    it, so at the loop's fixed point the step is zero and the state solves
+    ``F = 0`` exactly.  Above it, or when the state was set otherwise (a first
+    solve, a restored state, new Constants), the solve is the exact Newton path
+    to ``rtol``.
     """
 
     def __init__(self, F: ufl.Form, u: fem.Function, bcs: list, J: ufl.Form | None = None,
                  name: str = "newton", rtol: float = 1e-11, max_it: int = 30,
                  reuse: str = "adaptive", contraction: float = 0.1,
                  petsc_options: dict | None = None, form_compiler_params: dict | None = None,
-                 active_dofs: np.ndarray | None = None, J_reference: ufl.Form | None = None):
+                 active_dofs: np.ndarray | None = None, J_reference: ufl.Form | None = None,
+                 F_data: ufl.Form | None = None, linear_tolerance: float = 1e-3,
+                 reference_blocks: typing.Sequence[np.ndarray] | None = None):
         if reuse not in ("never", "adaptive"):
             raise ValueError(f"reuse must be 'never' or 'adaptive', got {reuse!r}")
+        if not (0.0 < linear_tolerance < 1.0):
+            raise ValueError(f"linear_tolerance must be in (0, 1), got {linear_tolerance!r}")
         fcp = form_compiler_params or {}
+        if isinstance(F_data, (int, float)) and F_data == 0:
+            F_data = None
         if J is None:
-            J = ufl.derivative(F, u)
+            J = ufl.derivative(F if F_data is None else F + F_data, u)
         self.F = fem.form(F, form_compiler_params=fcp)
+        self.F_data = None if F_data is None else fem.form(F_data, form_compiler_params=fcp)
         self.J = fem.form(J, form_compiler_params=fcp)
+        self.linear_tolerance = float(linear_tolerance)
+        self.last_linear_ratio: float | None = None
+        # what the state part depends on: its coefficients' values and its Constants
+        self._state_sources = (list(F.coefficients()), list(F.constants()))
+        self._state_key: list[np.ndarray] | None = None       # where the cached F(u) was assembled
+        self._solution_key: list[np.ndarray] | None = None    # where the last solve ended
         self.J_reference = None if J_reference is None else fem.form(J_reference, form_compiler_params=fcp)
         self.u, self.bcs, self.name = u, bcs, name
         self.rtol, self.max_it, self.reuse, self.contraction = rtol, max_it, reuse, contraction
@@ -249,6 +447,8 @@ class NewtonSolver:
         comm = u.function_space.mesh.comm
         self.A = fem_petsc.create_matrix(self.J)
         self.b = fem_petsc.create_vector(self.F)
+        self._state_vec = fem_petsc.create_vector(self.F)   # the state part F(u), owned entries
+        self._bc_check = self.A.createVecRight()
         self.du = self.A.createVecRight()
         self._active = None
         self._A_active = None
@@ -260,6 +460,16 @@ class NewtonSolver:
                                                     comm=comm)
         self.solver = DirectSolver(comm, name, petsc_options)
         self.ksp = self.solver.ksp
+        self._blocks = None
+        if reference_blocks is not None and self.J_reference is not None:
+            if active_dofs is not None:
+                raise ValueError(f"{name}: reference_blocks cannot be combined with active_dofs")
+            imap, bs = u.function_space.dofmap.index_map, u.function_space.dofmap.index_map_bs
+            n_owned, start = imap.size_local * bs, imap.local_range[0] * bs
+            owned = [np.sort(np.asarray(d, dtype=np.int64)) for d in reference_blocks]
+            owned = [d[d < n_owned] + start for d in owned]
+            self._blocks = BlockTriangularSolver(comm, name, owned, petsc_options)
+        self._linear = self.solver                 # what the current Jacobian is solved with
         self._have_jacobian = False
         self._exact = self.J_reference is None or reuse == "never"   # which Jacobian is (to be) kept
         self._load_dofs, self._load_values = np.empty(0, dtype=np.int32), np.empty(0)
@@ -281,10 +491,29 @@ class NewtonSolver:
         """True while the kept Jacobian is ``J_reference``."""
         return not self._exact
 
+    def _factorize_blocks(self) -> bool:
+        """Assemble J_reference; factorise it block by block if it is block lower-triangular."""
+        t0 = time.perf_counter()
+        self.A.zeroEntries()
+        fem_petsc.assemble_matrix(self.A, self.J_reference, bcs=self.bcs)
+        self.A.assemble()
+        self.stats["assemble_time"] += time.perf_counter() - t0
+        t0 = time.perf_counter()
+        if not self._blocks.factorize(self.A):
+            return False
+        self.stats["factor_time"] += time.perf_counter() - t0
+        self.stats["factorizations"] += 1
+        return True
+
     def _assemble_jacobian(self) -> None:
         sub = None if self._active is None else (self._active, self._A_active)
         form = self.J if self._exact else self.J_reference
         try:
+            if not self._exact and self._blocks is not None and self._factorize_blocks():
+                self._linear = self._blocks
+                self._have_jacobian = True
+                return
+            self._linear = self.solver
             operator = _assemble_and_factorize(self.A, form, self.bcs, self.solver, self.stats, sub)
         except SingularSystemError as exc:
             if self.stats["factorizations"] == 0:
@@ -306,13 +535,50 @@ class NewtonSolver:
         self._load_dofs = np.asarray(dofs, dtype=np.int32)
         self._load_values = np.asarray(values, dtype=float)
 
+    def _current_state_key(self) -> list[np.ndarray]:
+        functions, constants = self._state_sources
+        return [f.x.array for f in functions] + [np.asarray(c.value) for c in constants]
+
+    def _same_key(self, key: list[np.ndarray], other: list[np.ndarray] | None) -> bool:
+        return _unchanged(key, other, self.u.function_space.mesh.comm)
+
+    def state_residual(self) -> PETSc.Vec:
+        """The state part F(u) without boundary conditions or loads (owned entries; do not modify).
+
+        Re-assembled only if the state or a coefficient or Constant of F changed since the last time.
+        """
+        key = self._current_state_key()
+        if not self._same_key(key, self._state_key):
+            with self._state_vec.localForm() as loc:
+                loc.set(0.0)
+            fem_petsc.assemble_vector(self._state_vec, self.F)
+            self._state_vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+            self._state_key = [a.copy() for a in key]
+            self.stats["state_assemblies"] += 1
+        return self._state_vec
+
+    def _dirichlet_satisfied(self) -> bool:
+        """True if u already holds every Dirichlet value (then lifting adds nothing), on every rank."""
+        if not self.bcs:
+            return True
+        x = self._bc_check
+        self.u.vector.copy(x)
+        fem_petsc.set_bc(x, self.bcs)
+        ok = bool(np.array_equal(x.array_r, self.u.vector.array_r))
+        comm = self.u.function_space.mesh.comm
+        return comm.allreduce(ok, op=MPI.LAND) if comm.size > 1 else ok
+
     def residual(self) -> PETSc.Vec:
         """``F(u)`` - nodal loads, with Dirichlet rows holding ``u - g`` (the Newton convention)."""
+        state = self.state_residual()
         with self.b.localForm() as loc:
             loc.set(0.0)
-        fem_petsc.assemble_vector(self.b, self.F)
-        fem_petsc.apply_lifting(self.b, [self.J], bcs=[self.bcs], x0=[self.u.vector], scale=-1.0)
+        if self.F_data is not None:
+            fem_petsc.assemble_vector(self.b, self.F_data)
+        if not self._dirichlet_satisfied():
+            fem_petsc.apply_lifting(self.b, [self.J], bcs=[self.bcs], x0=[self.u.vector], scale=-1.0)
         self.b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        self.b.axpy(1.0, state)
         if self._load_dofs.size:
             # after the ghost update, so that each global dof receives its load exactly once
             with self.b.localForm() as loc:
@@ -322,7 +588,7 @@ class NewtonSolver:
 
     def _linear_solve(self) -> None:
         if self._active is None:
-            self.solver.solve(self.b, self.du)
+            self._linear.solve(self.b, self.du)
             return
         self.du.zeroEntries()
         b_sub, du_sub = self.b.getSubVector(self._active), self.du.getSubVector(self._active)
@@ -330,16 +596,38 @@ class NewtonSolver:
         self.b.restoreSubVector(self._active, b_sub)
         self.du.restoreSubVector(self._active, du_sub)
 
-    def solve(self) -> int:
-        """Iterate to convergence; return the number of iterations."""
+    def solve(self, linear_path: bool = False) -> int:
+        """Iterate to convergence; return the number of iterations.
+
+        ``linear_path``: if the state is the previous solve's solution, one
+        step with the kept Jacobian when the nonlinear remainder is small
+        enough (see the class docstring); otherwise the exact path.
+        """
+        iterations = self._iterate(linear_path and self._same_key(self._current_state_key(), self._solution_key))
+        self._solution_key = [a.copy() for a in self._current_state_key()]
+        return iterations
+
+    def _iterate(self, linear_path: bool) -> int:
         self.history = []
         previous = None
+        initial_residual = None
         if self.reuse == "never":
             self._have_jacobian = False
         for it in range(1, self.max_it + 1):
             t0 = time.perf_counter()
             self.residual()
             self.stats["assemble_time"] += time.perf_counter() - t0
+            if linear_path and initial_residual is None:
+                initial_residual = self.b.norm()
+            elif linear_path and len(self.history) == 1 and previous is not None:
+                # after the one step: does the nonlinear remainder matter?
+                rho = self.b.norm() / initial_residual if initial_residual > 0 else 0.0
+                self.last_linear_ratio = rho
+                if rho <= self.linear_tolerance:
+                    self.stats["linear_steps"] += 1
+                    return it - 1
+                self.stats["linear_fallbacks"] += 1
+                linear_path = False                 # strongly nonlinear: the exact path
             fresh = not self._have_jacobian
             if fresh:
                 self._assemble_jacobian()
@@ -369,9 +657,14 @@ class NewtonSolver:
             self.stats["newton_iterations"] += 1
             if du <= self.rtol * un or du == 0.0:
                 return it
-            # at the round-off floor the correction stops shrinking; accept it there
-            if previous is not None and rel > 0.5 * previous and rel < 1e3 * self.rtol:
-                return it
+            if previous is not None:
+                # at the round-off floor the correction stops shrinking; accept it there
+                if rel > 0.5 * previous and rel < 1e3 * self.rtol:
+                    return it
+                # linear contraction theta: the error left is about theta / (1 - theta) |du|
+                theta = rel / previous
+                if theta < 0.5 and theta / (1.0 - theta) * rel <= self.rtol:
+                    return it
             if self.reuse == "never" or (previous is not None and rel > self.contraction * previous):
                 self._have_jacobian = False
                 self._exact = True

@@ -157,8 +157,9 @@ class MovingStokesSolver(StokesSolver):
                                     "values": np.zeros((it.nodes.size, 2))}
 
     # -- hooks of StokesSolver --------------------------------------------------
-    def _bulk_residual(self, u, p, v, q):
-        return ale_bulk_residual(u, p, v, q, self.mu, self.mesh_displacement, self._d, self.dx, self.body_force)
+    def _bulk_residual(self, u, p, v, q, dx=None):
+        return ale_bulk_residual(u, p, v, q, self.mu, self.mesh_displacement, self._d, dx or self.dx,
+                                 self.body_force)
 
     def _robin_residual(self, u, v, n, alpha_n, alpha_t, g_normal, g_tangential, ds):
         return ale_robin_residual(u, v, self.mesh_displacement, self._d, n, alpha_n, alpha_t, g_normal,

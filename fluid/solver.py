@@ -27,7 +27,9 @@ P2 field lambda on the interface defined by
     int_Gamma lambda . v ds = R(v) := bulk residual (V, P; v, q = 0)   for all P2 v on Gamma,
 
 i.e. the reaction of the weak form without the interface terms (at an exact
-solution R(v) = int t . v ds), recovered with the interface mass matrix.
+solution R(v) = int t . v ds), recovered with the interface mass matrix:
+R is assembled over the cells that hold an interface node only, and the mass
+system has the size of the interface (``femtools.interface.InterfaceMass``).
 Where a velocity component of an interface node is fixed by ANOTHER
 boundary's Dirichlet condition (the ends of Gamma1 on a wall, the inflow or a
 symmetry line), that component of lambda is set to zero and left out of the
@@ -49,9 +51,10 @@ from petsc4py import PETSc
 
 import ufl
 from dolfinx import cpp as _cpp, fem, mesh as dmesh
+from dolfinx.fem import petsc as fem_petsc
 
 from femtools.functions import quadrature_measure
-from femtools.interface import InterfaceNodes
+from femtools.interface import InterfaceMass, InterfaceNodes
 from femtools.mesh import connected_components
 from femtools.linalg import LinearSolver, SolverStats
 from femtools.solver import FieldSolver
@@ -134,7 +137,7 @@ class _Interface:
         self.alpha_n: fem.Constant | None = None
         self.alpha_t: fem.Constant | None = None
         self.traction: fem.Function | None = None
-        self.traction_solver: LinearSolver | None = None
+        self.traction_mass: InterfaceMass | None = None
         self.force_form = None
         self.traction_current = False
         self.own_constrained = [np.empty(0, np.int32), np.empty(0, np.int32)]   # V dofs fixed by its own Dirichlet part
@@ -307,9 +310,9 @@ class StokesSolver(FieldSolver):
     # =========================================================================
     # setup helpers (the first three are overridden by fluid.ale.MovingStokesSolver)
     # =========================================================================
-    def _bulk_residual(self, u, p, v, q):
-        """The bulk Stokes residual (operator and traction recovery)."""
-        return forms.bulk_residual(u, p, v, q, self.mu, self.dx, self.body_force)
+    def _bulk_residual(self, u, p, v, q, dx=None):
+        """The bulk Stokes residual (operator and traction recovery) over ``dx`` (default: all cells)."""
+        return forms.bulk_residual(u, p, v, q, self.mu, dx or self.dx, self.body_force)
 
     def _robin_residual(self, u, v, n, alpha_n, alpha_t, g_normal, g_tangential, ds):
         return forms.robin_residual(u, v, n, alpha_n, alpha_t, g_normal, g_tangential, ds)
@@ -522,32 +525,51 @@ class StokesSolver(FieldSolver):
                          f"to a constant; leave part of that boundary free or pass pressure_pin=(x, y)")
 
     def _setup_traction_recovery(self) -> None:
-        """Interface mass matrices: int lambda.s ds_Gamma, all non-interface rows pinned."""
+        """Interface mass matrices on the interface nodes, and the reaction near the interfaces.
+
+        The reaction R(s) (bulk residual with q = 0) at an interface node
+        receives contributions only from the cells holding that node, so it is
+        assembled over those cells; the mass system has the interface's size.
+        """
         V = self.V
-        lam, s = ufl.TrialFunction(V), ufl.TestFunction(V)
         u_h, p_h = ufl.split(self.w)
+        s = ufl.TestFunction(V)
+        tdim = self.mesh.topology.dim
+        n_cells = self.mesh.topology.index_map(tdim).size_local
+        blocks = np.hstack([it.nodes.local_blocks for it in self._ifaces.values()] + [np.empty(0, np.int32)])
+        cell_dofs = V.dofmap.list.array.reshape(-1, V.dofmap.dof_layout.num_dofs)[:n_cells]
+        cells = np.flatnonzero(np.isin(cell_dofs, blocks).any(axis=1)).astype(np.int32)
+        near = dmesh.meshtags(self.mesh, tdim, cells, np.ones(cells.size, dtype=np.int32))
+        dx_near = quadrature_measure("dx", self.mesh, near, degree=self.quadrature_degree)(1)
         # R(s): bulk residual with q = 0, i.e. the reaction without interface terms
-        self._reaction_form = self._bulk_residual(u_h, p_h, s, 0)
-        n_local = (V.dofmap.index_map.size_local + V.dofmap.index_map.num_ghosts) * 2
+        self._reaction_form = fem.form(self._bulk_residual(u_h, p_h, s, 0, dx_near))
+        self._reaction = fem_petsc.create_vector(self._reaction_form)
+        self._reaction_current = False
+        self._traction_stats = SolverStats()
         self._direction = fem.Constant(self.mesh, PETSc.ScalarType((1.0, 0.0)))
+        t0 = time.perf_counter()
         for it in self._ifaces.values():
             ft = self._single_marker(it)
             ds = quadrature_measure("ds", self.mesh, ft, degree=self.quadrature_degree)
-            zero = fem.Constant(self.mesh, PETSc.ScalarType(0.0))
-            # Constant(0)*dx keeps a diagonal entry for every (pinned) off-interface row
-            a = ufl.inner(lam, s) * ds(1) + zero * ufl.inner(lam, s) * self.dx
             it.traction = fem.Function(V, name=f"{it.name}_traction")
             on = it.nodes.dofs()              # local (n, 2) unrolled V dofs on the interface
-            bcs = []
+            keep = np.zeros(on.shape)
             for c in range(2):
                 # fixed by another boundary: outer Dirichlet conditions and the other interfaces'
                 other = [self._constrained[c]] + [o.own_constrained[c] for o in self._ifaces.values() if o is not it]
-                keep = np.setdiff1d(on[:, c], np.hstack(other))
-                pinned = np.setdiff1d(np.arange(c, n_local, 2, dtype=np.int32), keep).astype(np.int32)
-                bcs.append(fem.dirichletbc(PETSc.ScalarType(0.0), pinned, V.sub(c)))
-            it.traction_solver = LinearSolver(a, self._reaction_form, it.traction, bcs,
-                                              name=f"{self.name}_{it.name}_traction")
+                keep[:, c] = ~np.isin(on[:, c], np.hstack(other))
+            it.traction_mass = InterfaceMass(it.nodes, V, ds(1), it.nodes.gather(keep) > 0.5)
             it.force_form = fem.form(ufl.inner(it.traction, self._direction) * ds(1))
+        self._traction_stats["factor_time"] += time.perf_counter() - t0
+        self._traction_stats["factorizations"] += len(self._ifaces)
+
+    def _assemble_reaction(self) -> PETSc.Vec:
+        """The reaction vector, exact at the interface nodes (assembled near the interfaces only)."""
+        with self._reaction.localForm() as loc:
+            loc.set(0.0)
+        fem_petsc.assemble_vector(self._reaction, self._reaction_form)
+        self._reaction.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        return self._reaction
 
     def _single_marker(self, it: _Interface):
         """Facet tags with value 1 on this interface only (one compiled form for all interfaces)."""
@@ -577,6 +599,7 @@ class StokesSolver(FieldSolver):
         self._p.x.array[:] = self.w.x.array[self._Q_to_W]
         for it in self._ifaces.values():
             it.traction_current = False
+        self._reaction_current = False
         self._solved = True
 
     def _require_solution(self) -> None:
@@ -586,7 +609,17 @@ class StokesSolver(FieldSolver):
     def _traction(self, it: _Interface) -> fem.Function:
         self._require_solution()
         if not it.traction_current:
-            it.traction_solver.solve()
+            stats = self._traction_stats
+            t0 = time.perf_counter()
+            if not self._reaction_current:
+                self._assemble_reaction()
+                self._reaction_current = True
+            R = it.nodes.from_array(self._reaction.array)
+            t1 = time.perf_counter()
+            it.nodes.to_function(it.traction_mass.solve(R), it.traction)
+            stats["assemble_time"] += t1 - t0
+            stats["solve_time"] += time.perf_counter() - t1
+            stats["solves"] += 1
             it.traction_current = True
         return it.traction
 
@@ -675,10 +708,7 @@ class StokesSolver(FieldSolver):
     @property
     def stats(self) -> dict:
         """Factorisations, solves and times: totals, and per part (``stokes``, ``traction``)."""
-        traction = SolverStats()
-        for it in self._ifaces.values():
-            for k, v in it.traction_solver.stats.items():
-                traction[k] += v
+        traction = self._traction_stats
         stokes = dict(self._solver.stats)
         total = {k: stokes[k] + traction[k] for k in stokes}
         total.update(stokes=stokes, traction=dict(traction), timing=dict(self.timing))

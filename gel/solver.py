@@ -170,6 +170,13 @@ class PoroelasticGelSolver(FieldSolver):
             ``displacement``).
         newton_reuse: ``"adaptive"`` (keep the factorised Jacobian at rest while
             it contracts) or ``"never"`` (exact Newton, a factorisation per iteration).
+        linear_path: each ``solve()`` takes one step with the kept
+            linearisation at rest and the current interface data, and goes on
+            to the exact Newton solution only if the nonlinear remainder
+            matters (``femtools.linalg.NewtonSolver.solve``).  Exact for a
+            linear problem; for a coupling loop whose every solve continues
+            from the previous state (a steady partitioned run), the remainder
+            converges with the coupling.  Default: the exact path.
 
     Example::
 
@@ -193,7 +200,8 @@ class PoroelasticGelSolver(FieldSolver):
                  tractions: typing.Iterable[tuple] = (),
                  body_forces=None, name: str = "gel", quadrature_degree: int = 4,
                  petsc_options: dict | None = None, newton_rtol: float = 1e-11,
-                 transient: bool = False, kinematics: str = "small", newton_reuse: str = "adaptive"):
+                 transient: bool = False, kinematics: str = "small", newton_reuse: str = "adaptive",
+                 linear_path: bool = False):
         t0 = time.perf_counter()
         super().__init__()
         if not isinstance(params, GelParameters):
@@ -232,27 +240,36 @@ class PoroelasticGelSolver(FieldSolver):
         rel, u, p = ufl.split(self.state)
         w, z, q = ufl.TestFunctions(self.W)
         v_f = rel + self.v_s if self.transient else rel
+        # the residual in two parts: the bulk (depends on the state only) and the interface and
+        # load terms (boundary integrals, the only part that changes with the coupling data)
         if self.kinematics == "small":
-            F = forms.bulk_residual(v_f, u, p, w, z, q, self.coefficients, self.dx, body_forces, self.v_s)
+            F_state = forms.bulk_residual(v_f, u, p, w, z, q, self.coefficients, self.dx, body_forces, self.v_s)
         else:
             dJdt = None if not self.transient else lagrangian.volume_rate(
                 u, self.history.past, self.history.constants, self.coefficients.d)
-            F = lagrangian.bulk_residual(v_f, u, p, w, z, q, self.coefficients, self.dx, body_forces,
-                                         self.v_s, dJdt)
+            F_state = lagrangian.bulk_residual(v_f, u, p, w, z, q, self.coefficients, self.dx, body_forces,
+                                               self.v_s, dJdt)
+        F_data = 0
         for iname, tags in fluid_interfaces.items():
-            F += self._add_fluid_interface(iname, tags)
+            F_data += self._add_fluid_interface(iname, tags)
         for iname, tags in cell_interfaces.items():
             self._add_cell_interface(iname, tags)
-        F += self._add_tractions(tractions, z)
+        F_data += self._add_tractions(tractions, z)
         self.bcs = self._build_bcs(no_slip, symmetry, dirichlet)
+        F = F_state + F_data
         self.residual_form = F
         options = dict(DEFAULT_PETSC_OPTIONS, **(petsc_options or {}))
         # the kept Jacobian is the linearisation at rest (no state, no interface data): the same matrix
         # whenever it is needed, e.g. after a restart; the exact one takes over at large loads
         data = [d[k] for d in self._fluid.values() for k in ("T", "V")]
         data += list(self.history.past) if self.transient else []
-        self._newton = NewtonSolver(F, self.state, self.bcs, name=name, rtol=newton_rtol, reuse=newton_reuse,
-                                    petsc_options=options, J_reference=jacobian_at_rest(F, self.state, data))
+        # at rest (steady) the flow's equations do not contain u: the linearisation is block
+        # lower-triangular in ((w, p), u) and is factorised block by block (checked when assembled)
+        flow = np.hstack([self._sub[0][1], self._sub[2][1]])
+        self._newton = NewtonSolver(F_state, self.state, self.bcs, name=name, rtol=newton_rtol, reuse=newton_reuse,
+                                    petsc_options=options, J_reference=jacobian_at_rest(F, self.state, data),
+                                    F_data=F_data, reference_blocks=[flow, self._sub[1][1]])
+        self.linear_path = bool(linear_path)
         self._build_postprocessing()
         self.timing["setup"] = time.perf_counter() - t0
         self.timing["newton_iterations"] = 0
@@ -392,6 +409,14 @@ class PoroelasticGelSolver(FieldSolver):
         self._phi_f_den = fem.form(psi * ds_all)
         self._p_expr = fem.Expression(p, self.Q2.element.interpolation_points())
         self._p2 = fem.Function(self.Q2)
+        # the nodal pressure is read on the fluid interfaces only: interpolate on their cells
+        tdim = self.mesh.topology.dim
+        self.mesh.topology.create_connectivity(tdim - 1, tdim)
+        f2c = self.mesh.topology.connectivity(tdim - 1, tdim)
+        facets = [self.facet_tags.find(t) for d in self._fluid.values() for t in d["tags"]]
+        facets = np.unique(np.hstack(facets + [np.empty(0, np.int32)])).astype(np.int32)
+        self._interface_cells = np.unique(np.hstack([f2c.links(f) for f in facets] + [np.empty(0, np.int32)])
+                                          ).astype(np.int32)
 
     def _check_tags(self, tags, what: str) -> tuple[int, ...]:
         tags = _as_tags(tags, what)
@@ -559,7 +584,7 @@ class PoroelasticGelSolver(FieldSolver):
         vals = [d["force"][d["rows"]].ravel() for d in self._cell.values()]
         self._newton.set_nodal_loads(np.hstack(dofs).astype(np.int32) if dofs else np.empty(0, np.int32),
                                      np.hstack(vals) if vals else np.empty(0))
-        its = self._newton.solve()
+        its = self._newton.solve(linear_path=self.linear_path)
         if self.transient:
             self._update_velocity()
         self.timing["newton_iterations"] += its
@@ -629,7 +654,7 @@ class PoroelasticGelSolver(FieldSolver):
         return a / b
 
     def _pressure_nodal(self, scalar_nodes: InterfaceNodes) -> np.ndarray:
-        self._p2.interpolate(self._p_expr)
+        self._p2.interpolate(self._p_expr, cells=self._interface_cells)
         return scalar_nodes.from_function(self._p2)
 
     # -- accessors ---------------------------------------------------------

@@ -173,11 +173,13 @@ def _interface_reactions(fields: DeviceFields, name: str, tag: int) -> dict:
     Vfl = V_f.function_space
     dxf = ufl.Measure("dx", domain=Vfl.mesh, metadata={"quadrature_degree": 4})
     vt = ufl.TestFunction(Vfl)
+    # numbers enter the forms as Constants: no parameter value (nor the normal's round-off) compiles anything
+    visc_c = fem.Constant(Vfl.mesh, visc)
     if p.kinematics == "finite":
         d = fem.Constant(Vfl.mesh, p.displacement_scale)
-        fluid_form = ale_bulk_residual(V_f, P_f, vt, 0, visc, fields.fluid_mesh_displacement, d, dxf)
+        fluid_form = ale_bulk_residual(V_f, P_f, vt, 0, visc_c, fields.fluid_mesh_displacement, d, dxf)
     else:
-        fluid_form = fluid_forms.bulk_residual(V_f, P_f, vt, 0, visc, dxf)
+        fluid_form = fluid_forms.bulk_residual(V_f, P_f, vt, 0, visc_c, dxf)
     fluid_nodes = InterfaceNodes(Vfl, fields.fluid_tags, tag)
     t_fluid = fluid_nodes.from_array(_reaction(fluid_form, Vfl).array)
     Vg = v_f.function_space
@@ -217,7 +219,8 @@ def _fluid_interface_residuals(fields: DeviceFields, name: str, tag: int) -> dic
     gel_nodes.to_function(np.column_stack([proj.of_nodal_load(-t_fluid[:, i]) for i in range(2)]), T)
     N_load = T_gel_load - F_f_load        # network partial traction, tested
     n, tau = _interface_frame(proj)
-    nn, tt = ufl.as_vector(n.tolist()), ufl.as_vector(tau.tolist())
+    nn, tt = fem.Constant(gm, n), fem.Constant(gm, tau)
+    visc = fem.Constant(gm, visc)
     phi_s = gel_forms.solid_fraction(u, c)
     tested = proj.tested
     terms = {
@@ -264,6 +267,8 @@ def _finite_fluid_interface_residuals(fields: DeviceFields, name: str, tag: int)
     def tested(vector):
         """int vector_k phi_j for every interface node j, (N, 2)."""
         return np.column_stack([proj.tested(vector[k]) for k in range(2)])
+    # numbers enter the forms as Constants: no parameter value compiles anything
+    visc, eta, beta = (fem.Constant(gm, float(v)) for v in (visc, eta, beta))
     alpha_n, alpha_t = default_robin_coefficient(p), visc / beta
     flux = gel_lagrangian.mixture_flux(v_f, u, c)
     i13 = tested(j * ufl.dot(V_on_gel - flux, n) * n)

@@ -453,7 +453,8 @@ class Device:
         self.gel = PoroelasticGelSolver(
             gel_mesh, gel_tags, self.gel_parameters, no_slip=b.gel_no_slip, symmetry=b.gel_symmetry,
             fluid_interfaces=b.fluid_interfaces, cell_interfaces=b.cell_interfaces,
-            newton_rtol=newton_rtol, transient=transient, kinematics=self.kinematics)
+            newton_rtol=newton_rtol, transient=transient, kinematics=self.kinematics,
+            linear_path=not transient)
         self.cell = None
         if params.with_cell:
             cell_mesh, cell_tags = self.mesh.region("cell")
@@ -462,7 +463,7 @@ class Device:
                 cell_mesh, cell_tags, mu=params.mu_c, lmbda=params.lambda_c, stress_scale=s,
                 displacement_scale=d, interfaces=None if robin else b.cell_interfaces,
                 robin_interfaces={k: (t, self.kappa) for k, t in b.cell_interfaces.items()} if robin else None,
-                symmetry=b.cell_symmetry, newton_rtol=newton_rtol)
+                symmetry=b.cell_symmetry, newton_rtol=newton_rtol, linear_path=not transient)
         self.setup_time = time.perf_counter() - t0
         self.transient = bool(transient)
         fluid_participant = MovingFluidParticipant if finite else FluidParticipant

@@ -385,7 +385,7 @@ class LayerDevice:
         u = self.gel.displacement()
         nodes = InterfaceNodes(u.function_space, self.gel_tags, int(Tag.GAMMA1))
         return {"velocity": V, "slip": V - v_f,
-                # steady: the gel's mixture velocity phi_f v_f + phi_s v_s is phi_f v_f
+                # steady (v_s = 0): the exchanged mixture velocity phi_f v_f + phi_s v_s is phi_f v_f
                 "superficial_velocity": self.scheme.latest("Gamma1/mixture_velocity"),
                 "displacement": nodes.from_function(u), "traction": self.scheme.latest("Gamma1/traction")}
 

@@ -28,7 +28,8 @@ from femtools.functions import interpolate, von_mises
 from femtools.io import _jsonable
 from gelcell.results import DeviceFields, gamma_profiles
 
-__all__ = ["DerivedFields", "FieldSeries", "write_fields", "write_profiles", "write_json_file", "gather_p1"]
+__all__ = ["DerivedFields", "FieldSeries", "write_fields", "write_profiles", "write_json_file", "gather_p1",
+           "P1Gather"]
 
 
 def write_json_file(path: str, data, comm: MPI.Comm) -> None:
@@ -154,9 +155,12 @@ class FieldSeries:
             xf.close()
 
 
-def write_fields(directory: str, fields: DeviceFields) -> list[str]:
-    """fluid.xdmf (V, P), gel.xdmf (v_f, p, u_s, von Mises ...), cell.xdmf (u_c, strain, stress)."""
-    series = FieldSeries(directory, DerivedFields(fields))
+def write_fields(directory: str, fields: DeviceFields, derived: DerivedFields | None = None) -> list[str]:
+    """fluid.xdmf (V, P), gel.xdmf (v_f, p, u_s, von Mises ...), cell.xdmf (u_c, strain, stress).
+
+    ``derived``: the :class:`DerivedFields` of ``fields`` if already built (e.g. shared with the figures).
+    """
+    series = FieldSeries(directory, derived or DerivedFields(fields))
     try:
         series.write(0.0)
     finally:
@@ -186,32 +190,67 @@ def write_profiles(directory: str, fields: DeviceFields, comm: MPI.Comm) -> dict
     return out
 
 
+class P1Gather:
+    """Vertex coordinates and triangles of a mesh gathered on rank 0 once, and field values at the vertices.
+
+    ``gather(f)`` interpolates a Function (any Lagrange space on this mesh,
+    scalar or vector; no form compilation) into P1 and returns
+    ``(x, triangles, values)`` on rank 0 and ``None`` elsewhere, as
+    :func:`gather_p1`.
+    """
+
+    def __init__(self, msh):
+        self.msh, self.comm = msh, msh.comm
+        self._spaces: dict[bool, fem.FunctionSpace] = {}
+        Q = self._space(False)
+        imap = Q.dofmap.index_map
+        n_owned = imap.size_local
+        self._n_owned, self._start, self._n = n_owned, imap.local_range[0], imap.size_global
+        x = Q.tabulate_dof_coordinates()[:n_owned, :2]
+        gidx = imap.local_to_global(np.arange(n_owned + imap.num_ghosts, dtype=np.int32))
+        n_cells = msh.topology.index_map(2).size_local
+        tri = gidx[Q.dofmap.list.array.reshape(-1, 3)[:n_cells]]
+        parts = self.comm.gather((self._start, x, tri), root=0)
+        self.x = self.triangles = None
+        if self.comm.rank == 0:
+            self.x = np.zeros((self._n, 2))
+            for start, xs, _ in parts:
+                self.x[start:start + len(xs)] = xs
+            self.triangles = np.vstack([t for *_, t in parts])
+
+    def _space(self, vector: bool) -> fem.FunctionSpace:
+        if vector not in self._spaces:
+            element = ("Lagrange", 1)
+            self._spaces[vector] = (fem.VectorFunctionSpace(self.msh, element) if vector
+                                    else fem.FunctionSpace(self.msh, element))
+        return self._spaces[vector]
+
+    def gather(self, f: fem.Function):
+        Q = self._space(bool(f.ufl_shape))
+        g = fem.Function(Q)
+        g.interpolate(f)
+        bs = Q.dofmap.index_map_bs
+        vals = g.x.array.reshape(-1, bs)[:self._n_owned]
+        parts = self.comm.gather((self._start, vals), root=0)
+        if self.comm.rank != 0:
+            return None
+        V = np.zeros((self._n, bs))
+        for start, vs in parts:
+            V[start:start + len(vs)] = vs
+        return self.x, self.triangles, (V[:, 0] if bs == 1 else V)
+
+
 def gather_p1(f: fem.Function | None, expr=None, msh=None):
     """Vertex coordinates, triangles and vertex values of a field, gathered on rank 0.
 
     ``f`` (or a UFL ``expr`` on ``msh``) is interpolated into P1; vector
     fields keep their components.  Returns ``(x, triangles, values)`` on
-    rank 0 and ``None`` elsewhere.
+    rank 0 and ``None`` elsewhere.  For several fields on one mesh use
+    :class:`P1Gather`, which gathers the mesh once.
     """
-    msh = msh or f.function_space.mesh
-    comm = msh.comm
-    shape = (f.ufl_shape if f is not None else expr.ufl_shape)
-    Q = fem.VectorFunctionSpace(msh, ("Lagrange", 1)) if shape else fem.FunctionSpace(msh, ("Lagrange", 1))
-    g = interpolate(f if expr is None else expr, Q)
-    imap, bs = Q.dofmap.index_map, Q.dofmap.index_map_bs
-    n_owned = imap.size_local
-    x = Q.tabulate_dof_coordinates()[:n_owned, :2]
-    vals = g.x.array.reshape(-1, bs)[:n_owned]
-    gidx = imap.local_to_global(np.arange(n_owned + imap.num_ghosts, dtype=np.int32))
-    n_cells = msh.topology.index_map(2).size_local
-    tri = gidx[Q.dofmap.list.array.reshape(-1, 3)[:n_cells]]
-    parts = comm.gather((imap.local_range[0], x, vals, tri), root=0)
-    if comm.rank != 0:
-        return None
-    n = imap.size_global
-    X, V = np.zeros((n, 2)), np.zeros((n, bs))
-    for start, xs, vs, _ in parts:
-        X[start:start + len(xs)] = xs
-        V[start:start + len(vs)] = vs
-    T = np.vstack([t for *_, t in parts])
-    return X, T, (V[:, 0] if bs == 1 else V)
+    if expr is not None:
+        msh = msh or f.function_space.mesh
+        shape = expr.ufl_shape
+        Q = fem.VectorFunctionSpace(msh, ("Lagrange", 1)) if shape else fem.FunctionSpace(msh, ("Lagrange", 1))
+        f = interpolate(expr, Q)
+    return P1Gather(f.function_space.mesh).gather(f)

@@ -18,7 +18,7 @@ import matplotlib.tri as mtri  # noqa: E402
 
 import ufl  # noqa: E402
 
-from gelcell.output import DerivedFields, gather_p1  # noqa: E402
+from gelcell.output import DerivedFields, P1Gather  # noqa: E402
 from gelcell.results import DeviceFields  # noqa: E402
 
 __all__ = ["draw_figures", "plot_profiles"]
@@ -50,9 +50,13 @@ def _streamlines(ax, tri, vx, vy):
     ax.streamplot(gx, gy, u, v, color="w", linewidth=0.6, density=1.2, arrowsize=0.6)
 
 
+#: PNG options: zlib level 1 (the pixels are the same; the encoding takes a quarter of the time)
+_PNG = {"dpi": 150, "bbox_inches": "tight", "pil_kwargs": {"compress_level": 1}}
+
+
 def _save(fig, directory, name, written):
     path = os.path.join(directory, name)
-    fig.savefig(path, dpi=150, bbox_inches="tight")
+    fig.savefig(path, **_PNG)
     plt.close(fig)
     written.append(name)
 
@@ -77,7 +81,7 @@ def plot_profiles(path: str, profiles: dict, params, overlay: dict | None = None
     if overlay is not None:
         axes[0, 0].legend()
     fig.suptitle(f"{params.case} flow: profiles along Γ1")
-    fig.savefig(path, dpi=150, bbox_inches="tight")
+    fig.savefig(path, **_PNG)
     plt.close(fig)
 
 
@@ -89,14 +93,15 @@ def draw_figures(directory: str, fields: DeviceFields, profiles: dict, summary: 
     V, L, S = p.to_report(1.0, "velocity"), p.to_report(1.0, "length"), p.to_report(1.0, "stress")
     derived = derived or DerivedFields(fields)
     gel = derived.gel
-    speed = gather_p1(gel["v_f"])
-    pressure = gather_p1(gel["p"])
-    disp = gather_p1(gel["u_s"])
-    vm = gather_p1(gel["von_mises_network"])
-    parts = {k: gather_p1(gel[f"von_mises_{k}_part"]) for k in ("pressure", "brinkman", "network", "total")}
+    on_gel = P1Gather(fields.gel_mesh).gather
+    speed = on_gel(gel["v_f"])
+    pressure = on_gel(gel["p"])
+    disp = on_gel(gel["u_s"])
+    vm = on_gel(gel["von_mises_network"])
+    parts = {k: on_gel(gel[f"von_mises_{k}_part"]) for k in ("pressure", "brinkman", "network", "total")}
     cell = None
     if fields.cell_displacement is not None:
-        cell = gather_p1(derived.cell["u_c"])
+        cell = P1Gather(fields.cell_mesh).gather(derived.cell["u_c"])
     written: list[str] = []
     if comm.rank != 0:
         return written
@@ -142,7 +147,13 @@ def draw_figures(directory: str, fields: DeviceFields, profiles: dict, summary: 
 
         fig, axes = plt.subplots(2, 2, figsize=(9, 8))
         for ax, (key, data) in zip(axes.ravel(), parts.items()):
-            _field_panel(ax, data, S * data[2], "von Mises [mPa]", cmap="magma")
+            # draw only the triangles that reach into the window; the colour scale still spans every
+            # vertex value (tripcolor scales by the value array, which stays whole)
+            X, T, values = data
+            lo, hi = centre - 4 * r, centre + 4 * r
+            corners = X[T]
+            inside = np.all((corners.max(axis=1) >= lo) & (corners.min(axis=1) <= hi), axis=1)
+            _field_panel(ax, (X, T[inside], values), S * values, "von Mises [mPa]", cmap="magma")
             ax.set_xlim(centre[0] - 4 * r, centre[0] + 4 * r)
             ax.set_ylim(centre[1] - 4 * r, centre[1] + 4 * r)
             ax.plot(centre[0] + r * np.cos(t), centre[1] + r * np.sin(t), "w-", lw=0.8)

@@ -24,7 +24,7 @@ from gelcell.checks import format_residuals, interface_residuals
 from gelcell.device import Device, coupling_config, default_robin_coefficient
 from gelcell.geometry import build_device
 from gelcell.monolithic import MonolithicCoefficients, MonolithicSolver
-from gelcell.output import write_fields, write_json_file, write_profiles
+from gelcell.output import DerivedFields, write_fields, write_json_file, write_profiles
 from gelcell.parameters import CaseParameters, ParameterError
 from gelcell.results import DeviceFields, fields_from_device, fields_from_monolithic, summarize
 from gelcell.validity import check_case, model_warnings
@@ -263,8 +263,9 @@ def run_case(params: CaseParameters, out: str | None, *, monolithic: bool = Fals
         return summary
     with atomic_directory(out, comm) as tmp:
         written = ["summary.json"]
+        derived = DerivedFields(run.fields) if fields or figures else None     # shared by XDMF and figures
         if fields:
-            written += write_fields(tmp, run.fields)
+            written += write_fields(tmp, run.fields, derived)
         profiles = write_profiles(tmp, run.fields, comm)
         written += [f"{k.lower()}_profiles.{ext}" for k in profiles for ext in ("h5", "csv")]
         if not monolithic:
@@ -272,7 +273,7 @@ def run_case(params: CaseParameters, out: str | None, *, monolithic: bool = Fals
             written.append("coupling/")
         if figures:
             from gelcell.plots import draw_figures
-            written += draw_figures(tmp, run.fields, profiles, summary, overlay_profiles)
+            written += draw_figures(tmp, run.fields, profiles, summary, overlay_profiles, derived)
         for name, data in (extra_json or {}).items():
             write_json_file(os.path.join(tmp, name), data, comm)
             written.append(name)

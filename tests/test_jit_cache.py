@@ -1,0 +1,57 @@
+"""No parameter value triggers form compilation once a case has run on the machine (issue 8, item 4).
+
+Every coefficient that a parameter sets (Ca, the moduli, the units, the cell
+position through the mesh) enters the compiled forms and expressions as a
+``fem.Constant`` or through the mesh, never as a float baked into generated
+code.  The test counts FFCx compilations (cache misses: ``_compile_objects``
+runs only when the compiled module is not in the cache) during runs at new
+parameter values, after one run that fills the cache, whatever state the
+machine's cache was in before.  The runs write summaries, fields and
+profiles; figures are left out (they draw Functions, no parameter enters
+their compiled expressions) to keep the test short.
+"""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from mpi4py import MPI
+
+import ffcx.codegeneration.jit as ffcx_jit
+
+from gelcell.parameters import CaseParameters
+from gelcell.runner import run_case
+
+COMM = MPI.COMM_WORLD
+
+
+@pytest.fixture
+def compilations(monkeypatch):
+    """The names of the modules FFCx compiles (not loads from its cache) while the test runs."""
+    names: list[str] = []
+    original = ffcx_jit._compile_objects
+
+    def counting(*args, **kwargs):
+        names.append(str(args[1] if len(args) > 1 else kwargs.get("module_name")))
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(ffcx_jit, "_compile_objects", counting)
+    return names
+
+
+def _run(params, out, **kwargs):
+    with open(os.devnull, "w") as quiet:
+        run_case(params, out, verbose=False, stream=quiet, figures=False, **kwargs)
+
+
+@pytest.mark.parametrize("monolithic", [False, True], ids=["partitioned", "monolithic"])
+def test_new_parameter_values_compile_nothing(shared_tmp_path, compilations, monolithic):
+    base = CaseParameters.default("shear").with_mesh_size(3.0)
+    _run(base, str(shared_tmp_path / "first"), monolithic=monolithic)       # fills the cache if needed
+    compilations.clear()
+    new = base.with_ca(7.7e-10).with_cell_moduli(3.3).with_gel_moduli(0.37).with_e(0.21)
+    _run(new, str(shared_tmp_path / "new"), monolithic=monolithic)
+    compiled = COMM.allreduce(len(compilations), op=MPI.SUM)
+    assert compiled == 0, f"new parameter values compiled {compilations}"

@@ -1,0 +1,195 @@
+"""The cheap coupling iteration (issue 8, item 3): linear path, block-triangular solves, traction recovery.
+
+* A linear-path solve (one step with the kept linearisation at rest, taken
+  when a solve continues the previous one) equals the exact Newton solution
+  to 1e-10 where the problem is linear: tiny loads, references converged
+  to 1e-13.
+* Where the nonlinear remainder matters (strains of ~10 %), the linear
+  path's test sends the solve down the exact Newton path, which converges to
+  the same solution as full Newton.
+* The block-triangular solve of the gel's linearisation at rest is the
+  solution of the whole system, not an approximation.
+* The interface mass matrix on the interface nodes is the one of the whole
+  space restricted to them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mpi4py import MPI
+from petsc4py import PETSc
+
+import ufl
+from dolfinx import fem
+from dolfinx.fem import petsc as fem_petsc
+
+from cell import NeoHookeanCellSolver
+from cell import meshes
+from femtools.functions import quadrature_measure
+from femtools.interface import InterfaceMass, InterfaceNodes
+from femtools.linalg import BlockTriangularSolver, DirectSolver
+from gel import GelParameters, PoroelasticGelSolver
+from gel.testing import BOTTOM, LEFT, RIGHT, TOP, rectangle
+
+COMM = MPI.COMM_WORLD
+
+
+def gnorm(values: np.ndarray) -> float:
+    """Norm over the ranks of owned values (each rank passes its owned part)."""
+    return float(np.sqrt(COMM.allreduce(float(np.sum(np.asarray(values) ** 2)), op=MPI.SUM)))
+
+
+def owned(f: fem.Function) -> np.ndarray:
+    imap, bs = f.function_space.dofmap.index_map, f.function_space.dofmap.index_map_bs
+    return f.x.array[: imap.size_local * bs]
+
+
+# -- the gel: a column under the fluid's traction and velocity --------------------------------
+def _column(params: GelParameters, **kwargs) -> PoroelasticGelSolver:
+    msh, ft = rectangle(0.0, -1.0, 0.2, 0.0, 3, 12)
+    return PoroelasticGelSolver(msh, ft, params, symmetry=[((LEFT, RIGHT), 0)], no_slip=BOTTOM,
+                                fluid_interfaces={"top": TOP}, **kwargs)
+
+
+def _load(gel: PoroelasticGelSolver, scale: float) -> None:
+    X = gel.interface_points("top")
+    traction = np.column_stack([0.3 * np.sin(np.pi * X[:, 0] / 0.2), -1.0 + 0.2 * X[:, 0]])
+    velocity = np.column_stack([0.1 + 0 * X[:, 0], -0.05 + 0 * X[:, 0]])
+    gel.set_interface_data("top", traction=scale * traction, velocity=scale * velocity)
+
+
+def _gel_pair(params, scales, rtol=1e-13):
+    """The same loads on a linear-path gel (solved after each load) and an exact-path gel (last load)."""
+    fast = _column(params, linear_path=True, newton_rtol=rtol)
+    for s in scales:
+        _load(fast, s)
+        fast.solve()
+    exact = _column(params, newton_rtol=rtol)
+    _load(exact, scales[-1])
+    exact.solve()
+    return fast, exact
+
+
+def test_gel_linear_path_equals_newton_where_linear():
+    """Strains ~1e-12 (viscous units at Ca = 1e-12): the one step is the solution, to 1e-10."""
+    fast, exact = _gel_pair(GelParameters.viscous_units(Ca=1e-12), scales=[1.0, 1.7])
+    assert fast.newton.stats["linear_steps"] == 1, fast.newton.stats     # the second solve took the path
+    assert fast.newton.stats["linear_fallbacks"] == 0, fast.newton.stats
+    a, b = owned(fast.state), owned(exact.state)
+    assert gnorm(a - b) <= 1e-10 * gnorm(b), gnorm(a - b) / gnorm(b)
+
+
+def test_gel_exact_path_at_a_large_load():
+    """Paper units, strains of ~3 %: the test rejects the one step; Newton converges to the solution."""
+    params = GelParameters(phi_s0=0.3, xi=5.0, lambda_s=1.5, beta=0.7, eta=0.4, Ca=0.5)
+    fast, exact = _gel_pair(params, scales=[0.3, 1.0], rtol=1e-12)
+    assert fast.newton.stats["linear_fallbacks"] == 1, fast.newton.stats
+    assert fast.newton.stats["linear_steps"] == 0, fast.newton.stats
+    assert fast.newton.last_linear_ratio > fast.newton.linear_tolerance
+    # the one step would have been far off: the correction after it is well above 1e-10
+    assert fast.newton.history[1] > 1e-6, fast.newton.history
+    a, b = owned(fast.state), owned(exact.state)
+    assert gnorm(a - b) <= 1e-10 * gnorm(b), gnorm(a - b) / gnorm(b)
+
+
+# -- the cell: Dirichlet data on its boundary ----------------------------------------------
+def _stretch(cell: NeoHookeanCellSolver, amplitude: float) -> None:
+    X = cell.interface_points("boundary")
+    g = amplitude * np.column_stack([0.10 * X[:, 0] + 0.05 * X[:, 1] ** 2, -0.04 * X[:, 1] + 0.03 * X[:, 0] * X[:, 1]])
+    cell.set_interface_data("boundary", displacement=g)
+
+
+def _cell_pair(d: float, amplitudes, rtol=1e-13):
+    msh, ft = meshes.block(1.0, 1.0, 6)
+    tags = tuple(int(t) for t in np.unique(np.hstack(COMM.allgather(np.unique(ft.values)))))
+    make = lambda **kw: NeoHookeanCellSolver(msh, ft, mu=1.0, lmbda=1.5, displacement_scale=d,  # noqa: E731
+                                             interfaces={"boundary": tags}, newton_rtol=rtol, **kw)
+    fast = make(linear_path=True)
+    for a in amplitudes:
+        _stretch(fast, a)
+        fast.solve()
+    exact = make(reuse="never")
+    _stretch(exact, amplitudes[-1])
+    exact.solve()
+    return fast, exact
+
+
+def test_cell_linear_path_equals_newton_where_linear():
+    fast, exact = _cell_pair(1e-12, [1.0, 1.5])
+    assert fast.stats["linear_steps"] == 1 and fast.stats["linear_fallbacks"] == 0, fast.stats
+    a, b = owned(fast.displacement), owned(exact.displacement)
+    assert gnorm(a - b) <= 1e-10 * gnorm(b)
+    fa, fb = (c.interface_data("boundary")["force"] for c in (fast, exact))
+    assert np.linalg.norm(fa - fb) <= 1e-10 * np.linalg.norm(fb)
+
+
+def test_cell_exact_path_at_a_large_load():
+    """Stretches of ~15 %: the one step is rejected; the result is the full-Newton solution."""
+    fast, exact = _cell_pair(1.0, [0.5, 1.5], rtol=1e-12)
+    assert fast.stats["linear_fallbacks"] == 1 and fast.stats["linear_steps"] == 0, fast.stats
+    assert fast.newton_history[1] > 1e-6, fast.newton_history
+    a, b = owned(fast.displacement), owned(exact.displacement)
+    assert gnorm(a - b) <= 1e-10 * gnorm(b)
+
+
+def test_linear_path_needs_a_continued_state():
+    """A first solve, or one from a state set from outside, is the exact path (it cannot count on a next one)."""
+    gel = _column(GelParameters.viscous_units(Ca=1e-12), linear_path=True)
+    _load(gel, 1.0)
+    gel.solve()
+    assert gel.newton.stats["linear_steps"] == 0
+    gel.set_state({"state": 0.5 * gel.state.x.array})
+    gel.solve()
+    assert gel.newton.stats["linear_steps"] == 0
+    _load(gel, 2.0)
+    gel.solve()
+    assert gel.newton.stats["linear_steps"] == 1
+
+
+# -- the block-triangular solve ------------------------------------------------------------
+def test_block_triangular_solve_is_the_solution():
+    """The gel's linearisation at rest, solved block by block, against one LU of the whole matrix."""
+    gel = _column(GelParameters.viscous_units(Ca=3e-10))
+    newton = gel.newton
+    newton._assemble_jacobian()
+    assert newton._linear is newton._blocks, "the gel's linearisation at rest is block lower-triangular"
+    A = newton.A
+    full = DirectSolver(COMM, "full")
+    full.set_operator(A)
+    full.factorize()
+    b = A.createVecLeft()
+    b.setRandom()
+    x_blocks, x_full = A.createVecRight(), A.createVecRight()
+    newton._blocks.solve(b, x_blocks)
+    full.solve(b, x_full)
+    x_blocks.axpy(-1.0, x_full)
+    assert x_blocks.norm() <= 1e-10 * x_full.norm()
+    # a matrix whose first block's equations contain the second block's unknowns is refused
+    first, second = (np.asarray(s.getIndices()) for s in newton._blocks.sets)
+    swapped = BlockTriangularSolver(COMM, "swapped", [second, first])
+    assert not swapped.factorize(A)
+
+
+# -- the interface mass matrix ------------------------------------------------------------
+def test_interface_mass_is_the_restricted_mass_matrix():
+    """M lambda for lambda = (x, x y) on Gamma equals int lambda . s ds at the interface nodes."""
+    msh, ft = rectangle(0.0, 0.0, 1.0, 0.5, 4, 3)
+    V = fem.VectorFunctionSpace(msh, ("Lagrange", 2))
+    nodes = InterfaceNodes(V, ft, TOP)
+    ds = quadrature_measure("ds", msh, ft, degree=4)(TOP)
+    mass = InterfaceMass(nodes, V, ds, np.ones((nodes.size, 2), dtype=bool))
+    lam = fem.Function(V)
+    lam.interpolate(lambda x: np.vstack([x[0], x[0] * x[1]]))
+    load = fem_petsc.assemble_vector(fem.form(ufl.inner(lam, ufl.TestFunction(V)) * ds))
+    load.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+    R = nodes.from_array(load.array)
+    L = nodes.from_function(lam)
+    assert np.abs(mass.matrix @ L.ravel() - R.ravel()).max() <= 1e-13 * np.abs(R).max()
+    np.testing.assert_allclose(mass.solve(R), L, rtol=0, atol=1e-12 * np.abs(L).max())
+    # pinned components are zero and left out of the solve
+    keep = np.ones((nodes.size, 2), dtype=bool)
+    keep[0, :] = False
+    pinned = InterfaceMass(nodes, V, ds, keep).solve(R)
+    assert np.all(pinned[0] == 0.0)
