@@ -118,15 +118,16 @@ def model_to_mesh(model, comm: MPI.Comm, rank: int = 0, gdim: int = 2):
 
 
 def model_to_region_mesh(model, comm: MPI.Comm, rank: int, region_tags: typing.Iterable[int],
-                         gdim: int = 2):
+                         gdim: int = 2, with_cell_tags: bool = False):
     """Mesh of the cells of the physical surfaces ``region_tags`` only.
 
-    Returns ``(mesh, facet_tags)``.  The facet tags keep every tagged facet of
-    the gmsh model whose nodes all belong to the region, i.e. the region's own
+    Returns ``(mesh, facet_tags)`` (``(mesh, cell_tags, facet_tags)`` with
+    ``with_cell_tags``).  The facet tags keep every tagged facet of the gmsh
+    model whose nodes all belong to the region, i.e. the region's own
     boundaries and the interfaces it shares with its neighbours.
     """
-    msh, _, facet_tags = _model_mesh(model, comm, rank, np.asarray(list(region_tags), dtype=np.int64), gdim)
-    return msh, facet_tags
+    msh, cell_tags, facet_tags = _model_mesh(model, comm, rank, np.asarray(list(region_tags), dtype=np.int64), gdim)
+    return (msh, cell_tags, facet_tags) if with_cell_tags else (msh, facet_tags)
 
 
 def connected_components(msh) -> tuple[np.ndarray, int]:

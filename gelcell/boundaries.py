@@ -9,6 +9,12 @@ Normal flow: uniform inflow (1, 0), zero traction at the outlet; v_f = 0 and
 u_s = 0 on the posts; symmetry (zero normal velocity and displacement, zero
 tangential traction) on y = 0 and y = H.  The cell's flat edge on y = H is
 a symmetry line too.  Gamma2 (steady): v_f = 0 on the gel side.
+
+Several cells: each has its own Gamma2 (``Gamma2_k``, facet tag
+``gamma2_tag(k)``).  A device from a geometry file (``params.case ==
+"file"``) names its boundaries itself (docs/geometry-files.md);
+:func:`device_layout` returns the cells, interfaces and conditions of any
+case without meshing it.
 """
 
 from __future__ import annotations
@@ -18,9 +24,10 @@ import typing
 
 import numpy as np
 
-from gelcell.geometry import Tag
+from gelcell.geometry import CellSpec, Tag, cell_region_tag, gamma2_name, gamma2_tag
 
-__all__ = ["DeviceBoundaries", "device_boundaries"]
+__all__ = ["DeviceBoundaries", "device_boundaries", "DeviceLayout", "device_layout", "builtin_cells",
+           "ParabolicInflow", "SegmentInflow"]
 
 
 @dataclasses.dataclass
@@ -53,9 +60,72 @@ class ParabolicInflow:
         return np.vstack((4.0 * x[1] * (H - x[1]) / H**2, np.zeros_like(x[0])))
 
 
-def device_boundaries(case: str, with_cell: bool, channel_height: float = 0.2) -> DeviceBoundaries:
-    """The boundary conditions of the ``"shear"`` or ``"normal"`` device."""
-    cell_ifaces = {"Gamma2": int(Tag.GAMMA2)} if with_cell else {}
+class SegmentInflow:
+    """Inflow through a straight inlet from ``a`` to ``b``: ``speed`` times the inward unit ``normal``,
+    times 4 s (1 - s) (parabolic, maximum ``speed``) or 1 (uniform), s the position along the segment."""
+
+    def __init__(self, a, b, normal, speed: float, profile: str):
+        self.a, self.b = np.asarray(a, float)[:2], np.asarray(b, float)[:2]
+        self.normal, self.speed, self.profile = np.asarray(normal, float)[:2], float(speed), profile
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        t = self.b - self.a
+        s = ((x[0] - self.a[0]) * t[0] + (x[1] - self.a[1]) * t[1]) / float(t @ t)
+        shape = 4.0 * s * (1.0 - s) if self.profile == "parabolic" else np.ones_like(s)
+        return np.vstack((self.speed * self.normal[0] * shape, self.speed * self.normal[1] * shape))
+
+
+def builtin_cells(params) -> list[CellSpec]:
+    """The cells of a built-in device (none without the cell)."""
+    if not params.with_cell:
+        return []
+    cells = params.geometry.cell_list()
+    n = len(cells)
+    out = []
+    for k, (x, y, d) in enumerate(cells, start=1):
+        half = params.case == "normal" and abs(y - params.geometry.height) <= 1e-12 * max(1.0, params.geometry.height)
+        out.append(CellSpec(index=k, name="cell" if n == 1 else f"cell_{k}", region_tag=cell_region_tag(k),
+                            facet_tag=gamma2_tag(k), interface=gamma2_name(k, n), centre=(x, y), diameter=d,
+                            symmetry=(1,) if half else ()))
+    return out
+
+
+@dataclasses.dataclass
+class DeviceLayout:
+    """What the solvers and the reports need to know of a device besides its meshes."""
+
+    boundaries: DeviceBoundaries
+    cells: list[CellSpec]
+    #: profile interfaces in order (Gamma1, Gamma3, ...): name -> facet tag
+    fluid_interfaces: dict[str, int]
+    #: display size of the figures: True for a device much wider than high
+    wide: bool = False
+    #: names of the facet tags in the file's convention (geometry files), for messages and counts
+    tag_names: dict[int, str] = dataclasses.field(default_factory=dict)
+
+    @property
+    def cell_region_tags(self) -> list[int]:
+        return [c.region_tag for c in self.cells]
+
+
+def device_layout(params) -> DeviceLayout:
+    """The layout of any case (built-in or geometry file), without meshing it."""
+    if params.case == "file":
+        from gelcell.geometryfile import file_layout
+        return file_layout(params)
+    cells = builtin_cells(params)
+    b = device_boundaries(params.case, params.with_cell, getattr(params.geometry, "channel_height", 0.2), cells)
+    return DeviceLayout(boundaries=b, cells=cells, fluid_interfaces=dict(b.fluid_interfaces),
+                        wide=params.case == "normal")
+
+
+def device_boundaries(case: str, with_cell: bool, channel_height: float = 0.2,
+                      cells: list[CellSpec] | None = None) -> DeviceBoundaries:
+    """The boundary conditions of the ``"shear"`` or ``"normal"`` device (``cells``: its cells, default one)."""
+    if cells is None:
+        cell_ifaces = {"Gamma2": int(Tag.GAMMA2)} if with_cell else {}
+    else:
+        cell_ifaces = {c.interface: c.facet_tag for c in cells} if with_cell else {}
     if case == "shear":
         return DeviceBoundaries(
             fluid_velocity=[([int(Tag.INLET)], ParabolicInflow(channel_height)),
@@ -73,7 +143,8 @@ def device_boundaries(case: str, with_cell: bool, channel_height: float = 0.2) -
             fluid_component=[(sym, 1, 0.0)],
             gel_no_slip=[int(Tag.POST)],
             gel_symmetry=[(sym, 1)],
-            cell_symmetry=[([int(Tag.SYMMETRY_TOP)], 1)],
+            cell_symmetry=([([int(Tag.SYMMETRY_TOP)], 1)] if cells is None or any(c.symmetry for c in cells)
+                           else []),
             fluid_interfaces={"Gamma1": int(Tag.GAMMA1), "Gamma3": int(Tag.GAMMA3)},
             cell_interfaces=cell_ifaces)
     raise ValueError(f"case must be 'shear' or 'normal', got {case!r}")

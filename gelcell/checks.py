@@ -71,7 +71,6 @@ from femtools.continuum import surface_stretch
 from femtools.interface import InterfaceNodes
 from fluid.ale import ale_bulk_residual
 from femtools.linalg import direct_solver
-from gelcell.boundaries import device_boundaries
 from gelcell.geometry import Tag
 from gelcell.results import DeviceFields
 
@@ -195,7 +194,10 @@ def _interface_reactions(fields: DeviceFields, name: str, tag: int) -> dict:
     V_on_gel = fem.Function(Vg)
     gel_nodes.to_function(fluid_nodes.from_function(V_f), V_on_gel)
     Q = fem.FunctionSpace(gm, ("Lagrange", 2))
-    others = [int(t) for t in Tag if int(t) != tag and int(t) >= 10]
+    present = set(np.unique(fields.fluid_tags.values).tolist()) | set(np.unique(fields.gel_tags.values).tolist())
+    present = gm.comm.allreduce(present, op=MPI.BOR)
+    others = sorted({int(t) for t in Tag} | {int(t) for t in present})
+    others = [t for t in others if t != tag and t >= 10]
     ends = np.vstack([_points_on(Vfl, fields.fluid_tags, others), _points_on(Vg, fields.gel_tags, others)])
     return dict(c=c, t_fluid=t_fluid, F_load=gel_nodes.from_array(R_w.array), G_load=gel_nodes.from_array(R_m.array),
                 V_on_gel=V_on_gel, gel_nodes=gel_nodes, Q=Q, Vg=Vg, Vfl=Vfl,
@@ -252,7 +254,7 @@ def _finite_fluid_interface_residuals(fields: DeviceFields, name: str, tag: int)
     free = proj.free
     # the fluid's traction on the gel as the fluid recovers it: a component is pinned (zero) only at the
     # nodes where another boundary fixes that velocity component (fluid.solver)
-    b = device_boundaries(p.case, p.with_cell, getattr(p.geometry, "channel_height", 0.2))
+    b = fields.layout.boundaries
     T = fem.Function(Vg)
     columns = []
     for k in range(2):
@@ -298,16 +300,16 @@ def _interface_frame(proj) -> tuple[np.ndarray, np.ndarray]:
     return n, np.array([-n[1], n[0]])
 
 
-def _cell_interface_residuals(fields: DeviceFields) -> dict[str, float]:
+def _cell_interface_residuals(fields: DeviceFields, spec) -> dict[str, float]:
     p = fields.params
     s, d = p.stress_scale, p.displacement_scale
     c = fields.gel_coefficients()
     v_f, u, pp, uc = fields.interstitial_velocity, fields.displacement, fields.pore_pressure, fields.cell_displacement
     Vg, Vc = v_f.function_space, uc.function_space
-    gel_nodes = InterfaceNodes(Vg, fields.gel_tags, int(Tag.GAMMA2))
-    cell_nodes = InterfaceNodes(Vc, fields.cell_tags, int(Tag.GAMMA2))
+    gel_nodes = InterfaceNodes(Vg, fields.gel_tags, int(spec.facet_tag))
+    cell_nodes = InterfaceNodes(Vc, fields.cell_tags, int(spec.facet_tag))
     if not np.allclose(gel_nodes.points, cell_nodes.points, rtol=0, atol=1e-10):
-        raise RuntimeError("Gamma2: gel and cell interface nodes differ")
+        raise RuntimeError(f"{spec.interface}: gel and cell interface nodes differ")
     dxg = ufl.Measure("dx", domain=Vg.mesh, metadata={"quadrature_degree": 4})
     dxc = ufl.Measure("dx", domain=Vc.mesh, metadata={"quadrature_degree": 4})
     R_m = gel_nodes.from_array(_reaction(fields.gel_forms.mixture_residual(v_f, u, pp, ufl.TestFunction(Vg), c,
@@ -318,8 +320,9 @@ def _cell_interface_residuals(fields: DeviceFields) -> dict[str, float]:
                                                               k(d), k(s), dxc), Vc).array)
     # nodes where a symmetry condition also acts carry its reaction: leave out that component
     mask = np.ones_like(R_c, dtype=bool)
-    sym = _points_on(Vc, fields.cell_tags, [int(Tag.SYMMETRY_TOP)])
-    mask[_among(cell_nodes.points, sym), 1] = False
+    for tags, comp in fields.layout.boundaries.cell_symmetry:
+        sym = _points_on(Vc, fields.cell_tags, [int(t) for t in tags])
+        mask[_among(cell_nodes.points, sym), comp] = False
     us, ucn = gel_nodes.from_function(u), cell_nodes.from_function(uc)
     vf = gel_nodes.from_function(v_f)
     return {
@@ -332,13 +335,13 @@ def _cell_interface_residuals(fields: DeviceFields) -> dict[str, float]:
 def interface_residuals(fields: DeviceFields) -> dict[str, dict[str, float]]:
     """Relative residual of every interface condition, by interface."""
     out = {}
-    names = {"Gamma1": int(Tag.GAMMA1)}
-    if fields.params.case == "normal":
-        names["Gamma3"] = int(Tag.GAMMA3)
-    for name, tag in names.items():
-        out[name] = _fluid_interface_residuals(fields, name, tag)
-    if fields.cell_displacement is not None:
-        out["Gamma2"] = _cell_interface_residuals(fields)
+    for name, tag in fields.layout.fluid_interfaces.items():
+        try:
+            out[name] = _fluid_interface_residuals(fields, name, int(tag))
+        except NotImplementedError:      # small-strain check of a curved interface: not available
+            continue
+    for spec in fields.cells:
+        out[spec.interface] = _cell_interface_residuals(fields, spec)
     return out
 
 

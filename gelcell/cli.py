@@ -74,6 +74,12 @@ def add_case_arguments(parser: argparse.ArgumentParser, case_positional: bool = 
         parser.add_argument("case", nargs="?", choices=CASES,
                             help="device geometry (default: [case] name of --config, else required)")
     g = parser.add_argument_group("case options")
+    g.add_argument("--geometry", metavar="FILE.geo|FILE.msh",
+                   help="your own device: a gmsh geometry file with named physical groups "
+                        "(docs/geometry-files.md); replaces the positional device name")
+    g.add_argument("--cells", nargs="+", metavar="X,Y,D",
+                   help="several cells in a built-in device: centre x, y and diameter of each, in units of L0 "
+                        "(a cell of the normal device centred on y = 0.5 is cut by the symmetry line)")
     g.add_argument("--config", metavar="CASE.toml",
                    help="TOML case file (tables [case] [physics] [dimensional] [cell] [geometry] "
                         "[mesh] [coupling]); command-line options override it")
@@ -107,14 +113,35 @@ def case_parameters_from_args(args: argparse.Namespace) -> CaseParameters:
     ``--ca``, ``--e``, ``--mesh-size`` (validated together), then ``--cell-moduli``,
     then ``--gel-moduli``.  Raises :class:`ParameterError`.
     """
+    cells = None
+    if getattr(args, "cells", None):
+        cells = []
+        for text in args.cells:
+            try:
+                x, y, dd = (float(v) for v in text.split(","))
+            except ValueError:
+                raise ParameterError(f"--cells {text!r}: each cell is X,Y,D (centre and diameter in units of L0), "
+                                     f"e.g. --cells 1.9,-0.2,0.06 2.1,-0.3,0.06") from None
+            cells.append([x, y, dd])
+    geometry = getattr(args, "geometry", None)
+    if geometry is not None:
+        if getattr(args, "case", None) is not None:
+            raise ParameterError(f"give either the device name ({args.case}) or --geometry {geometry}, not both")
+        if cells is not None or args.e is not None:
+            raise ParameterError(f"--{'cells' if cells is not None else 'e'} places the cells of a built-in device; "
+                                 f"the cells of --geometry {geometry} come from the file")
+        geometry = os.path.abspath(geometry)
+    if cells is not None and args.e is not None:
+        raise ParameterError("give either --e (the one cell) or --cells, not both")
     overrides = {"case.name": getattr(args, "case", None), "case.cell": args.cell,
+                 "geometry.file": geometry, "geometry.cells": cells,
                  "case.kinematics": args.kinematics,
                  "physics.ca": args.ca, "geometry.e": args.e, "mesh.size_factor": args.mesh_size}
     if args.config:
         params = CaseParameters.from_toml(args.config, overrides)
     else:
-        if overrides["case.name"] is None:
-            raise ParameterError("give the device geometry (shear or normal) or a --config file")
+        if overrides["case.name"] is None and geometry is None:
+            raise ParameterError("give the device geometry (shear or normal), --geometry FILE or a --config file")
         params = CaseParameters.from_dict({}, overrides, source="the command line")
     if args.cell_moduli is not None:
         params = params.with_cell_moduli(args.cell_moduli)

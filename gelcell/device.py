@@ -80,7 +80,7 @@ from fluid.ale import MovingStokesSolver
 from gel import GelParameters, PoroelasticGelSolver
 from femtools.serialize import CanonicalOrder
 from femtools.timestepping import WindowClock
-from gelcell.boundaries import DeviceBoundaries, device_boundaries
+from gelcell.boundaries import DeviceBoundaries
 from gelcell.geometry import build_device
 from gelcell.parameters import CaseParameters
 
@@ -113,13 +113,18 @@ def default_robin_coefficient(params: CaseParameters) -> float:
     g, ph = params.geometry, params.physics
     if params.case == "shear":
         depth, factor = g.radius * (1.0 - np.cos(g.half_angle)), 10.0
+    elif params.case == "file":
+        # depth: the gel's area over the interfaces' length; C = 1 if some fluid is enclosed (as the
+        # upstream fluid of the normal-flow device), else 10 (the gel is then the enclosed side)
+        info = g.layout
+        depth, factor = info.gel_depth, 1.0 if info.enclosed_fluid else 10.0
     else:
         depth, factor = g.gel_length, 1.0
     viscosity = ph.ca / params.stress_scale
     return float(factor * viscosity * ph.xi * ph.phi_s0 * depth / (1.0 - ph.phi_s0))
 
 
-def default_gamma2_coefficient(params: CaseParameters) -> float:
+def default_gamma2_coefficient(params: CaseParameters, diameter: float | None = None) -> float:
     """kappa = 2 (d/s) phi_s0 / r_c: the drained network's stiffness seen from the cell's surface.
 
     For a circular hole of radius r_c in an elastic plane of shear modulus
@@ -128,7 +133,7 @@ def default_gamma2_coefficient(params: CaseParameters) -> float:
     the Neumann side's stiffness makes the Robin-Neumann iteration contract
     whatever the cell's stiffness (docs/partitioning.md).
     """
-    radius = 0.5 * params.geometry.cell_diameter
+    radius = 0.5 * (params.geometry.min_cell_diameter if diameter is None else diameter)
     return float(2.0 * params.displacement_scale / params.stress_scale * params.physics.phi_s0 / radius)
 
 
@@ -419,9 +424,8 @@ class Device:
         params.validate()
         self.params, self.comm = params, comm
         self.mesh = build_device(params, comm, whole=whole_mesh)
-        g = params.geometry
-        self.boundaries = device_boundaries(params.case, params.with_cell,
-                                            getattr(g, "channel_height", 0.2))
+        self.layout = self.mesh.layout
+        self.boundaries = self.layout.boundaries
         b, ph = self.boundaries, params.physics
         s, d = params.stress_scale, params.displacement_scale
         viscosity = ph.ca / s
@@ -433,6 +437,9 @@ class Device:
             raise ValueError(f"gamma2 = {gamma2!r}: the cell's condition on Gamma2 must be 'dirichlet' or 'robin'")
         self.gamma2 = gamma2
         self.kappa = default_gamma2_coefficient(params) if gamma2_coefficient is None else gamma2_coefficient
+        # per cell: the stiffness seen from its own surface
+        kappas = {c.interface: (default_gamma2_coefficient(params, c.diameter) if gamma2_coefficient is None
+                                else gamma2_coefficient) for c in self.layout.cells}
         if gamma2 == "robin" and not self.kappa > 0:
             raise ValueError(f"gamma2_coefficient = {self.kappa} must be > 0")
         self.mesh_time = time.perf_counter() - t0
@@ -462,7 +469,7 @@ class Device:
             self.cell = NeoHookeanCellSolver(
                 cell_mesh, cell_tags, mu=params.mu_c, lmbda=params.lambda_c, stress_scale=s,
                 displacement_scale=d, interfaces=None if robin else b.cell_interfaces,
-                robin_interfaces={k: (t, self.kappa) for k, t in b.cell_interfaces.items()} if robin else None,
+                robin_interfaces={k: (t, kappas[k]) for k, t in b.cell_interfaces.items()} if robin else None,
                 symmetry=b.cell_symmetry, newton_rtol=newton_rtol, linear_path=not transient)
         self.setup_time = time.perf_counter() - t0
         self.transient = bool(transient)

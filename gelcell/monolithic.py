@@ -69,6 +69,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+import typing
 
 import numpy as np
 import scipy.spatial
@@ -123,7 +124,7 @@ class MonolithicSolver:
 
     Args:
         msh, cell_tags, facet_tags: the whole device (regions tagged
-            Tag.FLUID, Tag.GEL, Tag.CELL).
+            Tag.FLUID, Tag.GEL and the cells' ``cell_region_tags``, default Tag.CELL).
         boundaries: the case's boundary conditions.
         coefficients: parameter values.
     """
@@ -131,9 +132,11 @@ class MonolithicSolver:
     def __init__(self, msh, cell_tags, facet_tags, boundaries: DeviceBoundaries,
                  coefficients: MonolithicCoefficients, quadrature_degree: int = 4,
                  newton_rtol: float = 1e-12, petsc_options: dict | None = None,
-                 transient: bool = False):
+                 transient: bool = False, cell_region_tags: typing.Sequence[int] | None = None):
         t0 = time.perf_counter()
         self.mesh, self.cell_tags, self.facet_tags = msh, cell_tags, facet_tags
+        #: the cell tags of the cells (several cells: one tag each)
+        self.cell_region_tags = tuple(int(t) for t in (cell_region_tags or (int(Tag.CELL),)))
         self.boundaries, self.coefficients = boundaries, coefficients
         tdim = msh.topology.dim
         msh.topology.create_connectivity(tdim - 1, tdim)
@@ -210,7 +213,8 @@ class MonolithicSolver:
                          + ufl.dot(tangential(lam - alpha_t * (V - v_f)), tangential(mu)))
         if self.has_cell:
             mu_c, lambda_c, d, s = self.cell_moduli
-            F += cell_forms.residual(u, z, mu_c, lambda_c, d, s, dx(int(Tag.CELL)))
+            cells = self.cell_region_tags
+            F += cell_forms.residual(u, z, mu_c, lambda_c, d, s, dx(cells[0] if len(cells) == 1 else cells))
         # the fluid's load from the multiplier, and a zero multiplier "mass": diagonal entries for
         # the rows pinned at the interface ends
         interface += ufl.dot(lam, v) + fem.Constant(msh, 0.0) * ufl.dot(lam, mu)
@@ -274,7 +278,7 @@ class MonolithicSolver:
 
     def active_dofs(self) -> np.ndarray:
         """Every dof that has an equation: each field on its own subdomain."""
-        solid = [Tag.GEL, Tag.CELL] if self.has_cell else [Tag.GEL]
+        solid = [int(Tag.GEL), *self.cell_region_tags] if self.has_cell else [Tag.GEL]
         parts = [self._active(0, [Tag.FLUID]), self._active(1, [Tag.FLUID]),
                  self._active(2, [Tag.GEL]), self._active(3, solid), self._active(4, [Tag.GEL]),
                  self._active(5, facets=list(self.boundaries.fluid_interfaces.values()))]

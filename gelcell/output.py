@@ -170,7 +170,7 @@ def write_fields(directory: str, fields: DeviceFields, derived: DerivedFields | 
 
 def write_profiles(directory: str, fields: DeviceFields, comm: MPI.Comm) -> dict[str, dict]:
     """gamma1_profiles.h5/.csv (and gamma3_* for the normal-flow device), paper units."""
-    names = ["Gamma1"] + (["Gamma3"] if fields.params.case == "normal" else [])
+    names = list(fields.layout.fluid_interfaces)
     out = {}
     for name in names:
         prof = gamma_profiles(fields, name)

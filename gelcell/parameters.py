@@ -47,9 +47,11 @@ import tomllib
 import typing
 
 __all__ = ["ParameterError", "Physics", "Dimensional", "CellMaterial", "ShearGeometry",
-           "NormalGeometry", "MeshSizes", "CaseParameters", "CASES", "KINEMATICS", "REPORT_UNITS"]
+           "NormalGeometry", "FileGeometry", "MeshSizes", "CaseParameters", "CASES", "KINEMATICS", "REPORT_UNITS"]
 
 CASES = ("shear", "normal")
+#: every case: the built-in devices and a device from a geometry file (``[geometry] file``, ``--geometry``)
+ALL_CASES = CASES + ("file",)
 #: ``"finite"`` (default): total Lagrangian gel, moving fluid domain (docs/finite-strain.md);
 #: ``"small"``: the equations on the undeformed domain, exact to the size of the strains
 KINEMATICS = ("finite", "small")
@@ -113,6 +115,51 @@ def _poisson(lmbda: float, mu: float) -> float:
 
 _NU_WHY = ("the Poisson ratio ν = λ/(2(λ+μ)) must lie in (-1, 0.5), i.e. μ > 0 and "
            "λ > -2μ/3 (positive bulk modulus)")
+
+
+def _cells_tuple(value) -> tuple:
+    """``cells`` as a tuple of (x, y, d) float triples (from a TOML list or the command line)."""
+    if value is None:
+        return ()
+    try:
+        cells = tuple(tuple(float(v) for v in c) for c in value)
+    except (TypeError, ValueError):
+        raise ParameterError(f"parameter 'cells' = {value!r} must be a list of [x, y, d] "
+                             f"(centre and diameter, units of L0)") from None
+    for k, c in enumerate(cells):
+        if len(c) != 3:
+            raise ParameterError(f"parameter 'cells[{k}]' = {list(c)!r} must be [x, y, d] "
+                                 f"(centre and diameter, units of L0)")
+    return cells
+
+
+def _cell_list_problems(cells, h_cell: float, clearance) -> list[str]:
+    """Diameters > 0, each cell's clearance (gap to the gel's boundaries) and the gaps between cells.
+
+    ``clearance(x, y, r)`` returns ``(gap, what)``: the smallest distance from
+    the cell's circle to a gel boundary it must not touch, and that boundary's name.
+    """
+    p: list[str] = []
+    for k, (x, y, d) in enumerate(cells):
+        _check(p, f"cells[{k}].d", d, 0.0)
+    if p:
+        return p
+    why = (f"a cell must lie strictly inside the gel, with a gap of at least one cell element size "
+           f"({_fmt(h_cell)}) to the gel's boundaries and to the other cells so that the gap can be meshed")
+    for k, (x, y, d) in enumerate(cells):
+        gap, what = clearance(x, y, 0.5 * d)
+        if gap < h_cell:
+            p.append(f"parameter 'cells[{k}]' = [{_fmt(x)}, {_fmt(y)}, {_fmt(d)}]: the cell "
+                     f"{'overlaps' if gap < 0 else 'touches' if gap == 0 else 'comes within ' + _fmt(gap) + ' of'} "
+                     f"{what}: {why}")
+    for i in range(len(cells)):
+        for j in range(i + 1, len(cells)):
+            (xi, yi, di), (xj, yj, dj) = cells[i], cells[j]
+            gap = math.hypot(xi - xj, yi - yj) - 0.5 * (di + dj)
+            if gap < h_cell:
+                p.append(f"parameters 'cells[{i}]' and 'cells[{j}]': the cells "
+                         f"{'overlap' if gap < 0 else 'touch' if gap == 0 else 'are ' + _fmt(gap) + ' apart'}: {why}")
+    return p
 
 
 # --------------------------------------------------------------------------- blocks
@@ -221,6 +268,18 @@ class ShearGeometry:
     cell_diameter: float = 0.06
     e: float = 0.2
     cell_offset_x: float = 0.0
+    #: several cells: ((x, y, d), ...) centres and diameters; empty: the one cell of e, cell_offset_x
+    cells: tuple = ()
+
+    def cell_list(self) -> list[tuple[float, float, float]]:
+        """Centre and diameter of every cell."""
+        if self.cells:
+            return [tuple(c) for c in self.cells]
+        return [(*self.cell_centre, self.cell_diameter)]
+
+    @property
+    def min_cell_diameter(self) -> float:
+        return min(c[2] for c in self.cell_list())
 
     @property
     def channel_length(self) -> float:
@@ -245,6 +304,7 @@ class ShearGeometry:
         return self.x_mid + self.cell_offset_x, -self.e
 
     def __post_init__(self):
+        object.__setattr__(self, "cells", _cells_tuple(self.cells))
         _raise(self.problems())
 
     def problems(self) -> list[str]:
@@ -259,6 +319,12 @@ class ShearGeometry:
 
     def placement_problems(self, h_cell: float) -> list[str]:
         """The cell must lie inside the gel with a gap ≥ ``h_cell`` to Γ1 and the bowl."""
+        if self.cells:
+            xb, yb = self.bowl_centre
+
+            def clearance(x, y, r):
+                return min((-y - r, "Γ1 (y = 0)"), (self.radius - math.hypot(x - xb, y - yb) - r, "the bowl"))
+            return _cell_list_problems(self.cells, h_cell, clearance)
         r, R = 0.5 * self.cell_diameter, self.radius
         _, yb = self.bowl_centre
         gap = r + h_cell
@@ -302,6 +368,19 @@ class NormalGeometry:
     post_clearance: float = 0.2
     cell_diameter: float = 0.06
     e: float = 1.2
+    #: several cells: ((x, y, d), ...); a cell centred on y = height is cut by the symmetry line
+    #: (its lower half is in the domain); empty: the one cell of e
+    cells: tuple = ()
+
+    def cell_list(self) -> list[tuple[float, float, float]]:
+        """Centre and diameter of every (whole) cell."""
+        if self.cells:
+            return [tuple(c) for c in self.cells]
+        return [(*self.cell_centre, self.cell_diameter)]
+
+    @property
+    def min_cell_diameter(self) -> float:
+        return min(c[2] for c in self.cell_list())
 
     @property
     def post_centres(self) -> tuple[float, float]:
@@ -313,6 +392,7 @@ class NormalGeometry:
         return self.e, self.height
 
     def __post_init__(self):
+        object.__setattr__(self, "cells", _cells_tuple(self.cells))
         _raise(self.problems())
 
     def problems(self) -> list[str]:
@@ -363,6 +443,19 @@ class NormalGeometry:
         return intervals
 
     def placement_problems(self, h_cell: float) -> list[str]:
+        if self.cells:
+            H, rp = self.height, 0.5 * self.post_diameter
+
+            def clearance(x, y, r):
+                on_line = abs(y - H) <= 1e-12 * max(1.0, H)
+                gaps = [(x - r, "Γ1 (x = 0)"), (self.gel_length - x - r, f"Γ3 (x = {_fmt(self.gel_length)})"),
+                        (y - r, "the symmetry line y = 0")]
+                if not on_line:
+                    gaps.append((H - y - r, f"the symmetry line y = {_fmt(H)} (only a cell centred on it "
+                                            f"may cross it)"))
+                gaps += [(math.hypot(x - xp, y) - rp - r, "a post") for xp in self.post_centres]
+                return min(gaps)
+            return _cell_list_problems(self.cells, h_cell, clearance)
         r = 0.5 * self.cell_diameter
         why = (f"the cell (diameter {_fmt(self.cell_diameter)}) must lie strictly inside the gel, "
                f"with a gap to Γ1, Γ3 and the posts of at least one cell element size "
@@ -425,8 +518,52 @@ class MeshSizes:
         return p
 
 
+@dataclasses.dataclass(frozen=True)
+class FileGeometry:
+    """A device from a gmsh geometry file (``.geo`` or ``.msh``) named by docs/geometry-files.md.
+
+    ``file`` is the path (a relative path in a TOML case file is relative to
+    that file).  The file is read and checked on construction (no meshing):
+    a naming or topology problem raises :class:`ParameterError` naming the
+    group or entity.  Cells come from the file.
+    """
+
+    file: str = ""
+
+    def __post_init__(self):
+        _raise(self.problems())
+
+    def problems(self) -> list[str]:
+        from gelcell.geometryfile import analyse
+        analyse(self.file)          # raises ParameterError naming the problem
+        return []
+
+    @property
+    def layout(self):
+        from gelcell.geometryfile import analyse
+        return analyse(self.file)
+
+    def cell_list(self) -> list[tuple[float, float, float]]:
+        return [(*c.centre, c.diameter) for c in self.layout.layout.cells]
+
+    @property
+    def min_cell_diameter(self) -> float:
+        cells = self.cell_list()
+        return min(c[2] for c in cells) if cells else 0.06
+
+    @property
+    def e(self):
+        return None
+
+    def placement_problems(self, h_cell: float) -> list[str]:
+        return []
+
+    def wall_problems(self, h_wall: float) -> list[str]:
+        return []
+
+
 _BLOCKS = {"physics": Physics, "dimensional": Dimensional, "mesh": MeshSizes}
-_GEOMETRY = {"shear": ShearGeometry, "normal": NormalGeometry}
+_GEOMETRY = {"shear": ShearGeometry, "normal": NormalGeometry, "file": FileGeometry}
 
 
 def _field_names(cls) -> list[str]:
@@ -464,14 +601,23 @@ class CaseParameters:
     time: dict = dataclasses.field(default_factory=dict)
 
     def __post_init__(self):
-        if self.case not in CASES:
-            raise ParameterError(f"parameter 'case' = {self.case!r} is not one of {list(CASES)}")
+        if self.case not in ALL_CASES:
+            raise ParameterError(f"parameter 'case' = {self.case!r} is not one of {list(CASES)} "
+                                 f"(or a geometry file)")
         if self.kinematics not in KINEMATICS:
             raise ParameterError(f"parameter 'kinematics' = {self.kinematics!r} is not one of {list(KINEMATICS)} "
                                  f"(finite: total Lagrangian gel and a moving fluid domain; small: every field on "
                                  f"its undeformed domain)")
         if self.geometry is None:
+            if self.case == "file":
+                raise ParameterError("a geometry-file case needs its file: [geometry] file or --geometry FILE")
             object.__setattr__(self, "geometry", _GEOMETRY[self.case]())
+        if self.case == "file" and isinstance(self.geometry, FileGeometry):
+            has_cells = bool(self.geometry.cell_list())
+            if has_cells and not self.with_cell:
+                raise ParameterError(f"parameter 'cell' = false: the cells of geometry file "
+                                     f"{self.geometry.file!r} come from the file (remove them there)")
+            object.__setattr__(self, "with_cell", has_cells)
         object.__setattr__(self, "coupling", copy.deepcopy(dict(self.coupling or {})))
         object.__setattr__(self, "time", copy.deepcopy(dict(self.time or {})))
         self.validate()
@@ -501,7 +647,7 @@ class CaseParameters:
 
     @classmethod
     def from_dict(cls, data: typing.Mapping, overrides: typing.Mapping | None = None,
-                  source: str = "input") -> "CaseParameters":
+                  source: str = "input", base_dir: str | None = None) -> "CaseParameters":
         """Build from the TOML layout (see ``examples/case_baseline_*.toml``).
 
         Tables: ``[case] name, cell, kinematics``; ``[physics]``; ``[dimensional]`` (may
@@ -546,9 +692,25 @@ class CaseParameters:
             return block
 
         case_block = take("case", ["name", "cell", "kinematics"])
+        geometry_block = d.get("geometry", {})
+        if geometry_block.get("file") is not None:
+            if case_block.get("name") not in (None, "file"):
+                raise ParameterError(f"give either the device [case] name = {case_block['name']!r} or a geometry "
+                                     f"file ([geometry] file / --geometry) in {source}, not both")
+            for key in ("e", "cells", "cell_offset_x"):
+                if key in geometry_block:
+                    raise ParameterError(f"'geometry.{key}' places the cells of a built-in device; the cells of "
+                                         f"geometry file {geometry_block['file']!r} come from the file")
+            path = geometry_block["file"]
+            if isinstance(path, str) and base_dir and not os.path.isabs(path):
+                geometry_block["file"] = os.path.normpath(os.path.join(base_dir, path))
+            case_block["name"] = "file"
+            case_block.setdefault("cell", True)
         case = case_block.get("name", "shear")
-        if case not in CASES:
+        if case not in CASES and case != "file":
             raise ParameterError(f"parameter 'case' = {case!r} is not one of {list(CASES)}")
+        if case == "file" and geometry_block.get("file") is None:
+            raise ParameterError(f"case 'file' needs [geometry] file (a .geo or .msh path) in {source}")
         with_cell = case_block.get("cell", True)
         kinematics = case_block.get("kinematics", "finite")
         if kinematics not in KINEMATICS:
@@ -613,7 +775,8 @@ class CaseParameters:
             raise ParameterError(f"cannot read case file {os.fspath(path)!r}: {exc.strerror}") from None
         except tomllib.TOMLDecodeError as exc:
             raise ParameterError(f"case file {os.fspath(path)!r} is not valid TOML: {exc}") from None
-        return cls.from_dict(data, overrides, source=os.fspath(path))
+        return cls.from_dict(data, overrides, source=os.fspath(path),
+                             base_dir=os.path.dirname(os.path.abspath(os.fspath(path))))
 
     # ----------------------------------------------------------- variants
     def replace(self, **changes) -> "CaseParameters":
@@ -630,6 +793,9 @@ class CaseParameters:
 
     def with_e(self, value: float) -> "CaseParameters":
         """Move the cell: centre (x_mid, -e) (shear) or (e, 0.5) (normal)."""
+        if self.case == "file" or self.geometry.cells:
+            raise ParameterError("parameter 'e' places the one cell of a built-in device; here the cells are "
+                                 "given by the geometry file or the cells list")
         return self.replace(geometry=dataclasses.replace(self.geometry, e=value))
 
     def with_mesh_size(self, factor: float) -> "CaseParameters":
@@ -716,7 +882,7 @@ class CaseParameters:
         """Element sizes and band widths (units of L0) after ``size_factor``."""
         m, f = self.mesh, self.mesh.size_factor
         delta = self.brinkman_layer
-        d = self.geometry.cell_diameter
+        d = self.geometry.min_cell_diameter
         return {"h_fluid": f * m.h_fluid, "h_gel": f * m.h_gel,
                 "h_cell": f * math.pi * d / m.n_cell_edges,
                 "h_layer": f * delta / m.layer_elements,
@@ -782,7 +948,7 @@ class CaseParameters:
             "cell_youngs_modulus_Pa": self.cell.youngs_modulus,
             "cell_poisson_ratio": self.cell.poisson_ratio, "pore_radius_m": d.pore_radius,
             "xi_Pa_s_per_m2": ph.xi * d.mu / d.L0 ** 2, "beta_m_per_Pa_s": ph.beta * d.L0 / d.mu,
-            "eta_m_per_Pa_s": ph.eta * d.L0 / d.mu, "e_m": self.e * d.L0,
+            "eta_m_per_Pa_s": ph.eta * d.L0 / d.mu, "e_m": None if self.e is None else self.e * d.L0,
             "brinkman_layer_m": self.brinkman_layer * d.L0, "time_scale_s": d.L0 / self.V0,
             "solver_stress_unit_Pa": d.mu * self.V0 / d.L0,
             "solver_displacement_unit_m": ph.ca * d.L0}

@@ -80,9 +80,21 @@ def plot_profiles(path: str, profiles: dict, params, overlay: dict | None = None
         ax.set_xlabel(f"{along} / L0 along Γ1")
     if overlay is not None:
         axes[0, 0].legend()
-    fig.suptitle(f"{params.case} flow: profiles along Γ1")
+    fig.suptitle(f"{params.case} flow: profiles along Γ1" if params.case != "file" else
+                 f"{os.path.basename(params.geometry.file)}: profiles along Γ1")
     fig.savefig(path, **_PNG)
     plt.close(fig)
+
+
+def _mark_cells(ax, specs) -> None:
+    """Outline and (several cells) label every cell on a field panel."""
+    t = np.linspace(0, 2 * np.pi, 100)
+    for spec in specs:
+        centre, r = np.asarray(spec.centre), 0.5 * spec.diameter
+        ax.plot(centre[0] + r * np.cos(t), centre[1] + r * np.sin(t), "w-", lw=0.6)
+        if len(specs) > 1:
+            ax.annotate(spec.name.replace("cell_", "c"), centre + np.array([0, 1.3 * r]), ha="center",
+                        fontsize=6, color="w")
 
 
 def draw_figures(directory: str, fields: DeviceFields, profiles: dict, summary: dict,
@@ -105,13 +117,14 @@ def draw_figures(directory: str, fields: DeviceFields, profiles: dict, summary: 
     written: list[str] = []
     if comm.rank != 0:
         return written
-    wide = p.case == "normal"
+    wide = fields.layout.wide
     size = (11, 3.2) if wide else (8, 4)
 
     fig, ax = plt.subplots(figsize=size)
     vals = speed[2]
     tri = _field_panel(ax, speed, V * np.linalg.norm(vals, axis=1), "|v_f| [µm/s]")
     _streamlines(ax, tri, vals[:, 0], vals[:, 1])
+    _mark_cells(ax, fields.cells)
     ax.set_title("interstitial velocity in the gel")
     _save(fig, directory, "gel_velocity.png", written)
 
@@ -124,6 +137,8 @@ def draw_figures(directory: str, fields: DeviceFields, profiles: dict, summary: 
     _field_panel(axes[0], disp, L * np.linalg.norm(disp[2], axis=1), "|u_s| [µm]")
     axes[0].set_title("network displacement")
     _field_panel(axes[1], vm, S * vm[2], "von Mises of σ_s [mPa]", cmap="magma")
+    for ax in axes:
+        _mark_cells(ax, fields.cells)
     axes[1].set_title("von Mises stress of the network")
     _save(fig, directory, "gel_displacement_von_mises.png", written)
 
@@ -131,37 +146,49 @@ def draw_figures(directory: str, fields: DeviceFields, profiles: dict, summary: 
     written.append("gamma1_profiles.png")
 
     if cell is not None:
-        centre = np.asarray(p.geometry.cell_centre)
-        r = 0.5 * p.geometry.cell_diameter
+        specs = fields.cells
         X, _, U = cell
-        rel = U - np.asarray(summary["cell.centroid_displacement"])
-        fig, ax = plt.subplots(figsize=(5, 5))
-        ax.quiver(X[:, 0], X[:, 1], L * rel[:, 0], L * rel[:, 1], angles="xy")
         t = np.linspace(0, 2 * np.pi, 200)
-        ax.plot(centre[0] + r * np.cos(t), centre[1] + r * np.sin(t), "k-", lw=0.5)
+        fig, ax = plt.subplots(figsize=(5, 5) if len(specs) == 1 else (8, 5))
+        # each cell's displacement relative to its own centroid, each cell outlined and labelled
+        cells_summary = summary.get("cells") or [{"centroid_displacement": summary["cell.centroid_displacement"]}]
+        for spec, cs in zip(specs, cells_summary):
+            centre, r = np.asarray(spec.centre), 0.5 * spec.diameter
+            mine = np.linalg.norm(X - centre, axis=1) <= r * (1 + 1e-6)
+            rel = U[mine] - np.asarray(cs["centroid_displacement"])
+            ax.quiver(X[mine, 0], X[mine, 1], L * rel[:, 0], L * rel[:, 1], angles="xy")
+            ax.plot(centre[0] + r * np.cos(t), centre[1] + r * np.sin(t), "k-", lw=0.5)
+            if len(specs) > 1:
+                ax.annotate(spec.name, centre + np.array([0, 1.15 * r]), ha="center", fontsize=8)
         ax.set_aspect("equal")
         ax.set_xlabel("x / L0")
         ax.set_ylabel("y / L0")
         ax.set_title("cell displacement relative to its centroid [µm, arrows not to scale]")
         _save(fig, directory, "cell_displacement.png", written)
 
-        fig, axes = plt.subplots(2, 2, figsize=(9, 8))
-        for ax, (key, data) in zip(axes.ravel(), parts.items()):
-            # draw only the triangles that reach into the window; the colour scale still spans every
-            # vertex value (tripcolor scales by the value array, which stays whole)
-            X, T, values = data
-            lo, hi = centre - 4 * r, centre + 4 * r
-            corners = X[T]
-            inside = np.all((corners.max(axis=1) >= lo) & (corners.min(axis=1) <= hi), axis=1)
-            _field_panel(ax, (X, T[inside], values), S * values, "von Mises [mPa]", cmap="magma")
-            ax.set_xlim(centre[0] - 4 * r, centre[0] + 4 * r)
-            ax.set_ylim(centre[1] - 4 * r, centre[1] + 4 * r)
-            ax.plot(centre[0] + r * np.cos(t), centre[1] + r * np.sin(t), "w-", lw=0.8)
-            ax.set_title({"pressure": "pressure  −p I", "brinkman": "Brinkman  φ_f σ_f",
-                          "network": "network  φ_s σ_s", "total": "total"}[key])
-        fig.suptitle("stress parts in the gel around the cell (von Mises)")
-        fig.subplots_adjust(wspace=0.5, hspace=0.35)
-        _save(fig, directory, "cell_traction_parts.png", written)
+        for spec in specs:
+            centre, r = np.asarray(spec.centre), 0.5 * spec.diameter
+            fig, axes = plt.subplots(2, 2, figsize=(9, 8))
+            for ax, (key, data) in zip(axes.ravel(), parts.items()):
+                # draw only the triangles that reach into the window; the colour scale still spans every
+                # vertex value (tripcolor scales by the value array, which stays whole)
+                X, T, values = data
+                lo, hi = centre - 4 * r, centre + 4 * r
+                corners = X[T]
+                inside = np.all((corners.max(axis=1) >= lo) & (corners.min(axis=1) <= hi), axis=1)
+                _field_panel(ax, (X, T[inside], values), S * values, "von Mises [mPa]", cmap="magma")
+                ax.set_xlim(centre[0] - 4 * r, centre[0] + 4 * r)
+                ax.set_ylim(centre[1] - 4 * r, centre[1] + 4 * r)
+                for other in specs:
+                    c2, r2 = np.asarray(other.centre), 0.5 * other.diameter
+                    ax.plot(c2[0] + r2 * np.cos(t), c2[1] + r2 * np.sin(t), "w-", lw=0.8)
+                ax.set_title({"pressure": "pressure  −p I", "brinkman": "Brinkman  φ_f σ_f",
+                              "network": "network  φ_s σ_s", "total": "total"}[key])
+            fig.suptitle("stress parts in the gel around the cell (von Mises)" if len(specs) == 1 else
+                         f"stress parts in the gel around {spec.name} (von Mises)")
+            fig.subplots_adjust(wspace=0.5, hspace=0.35)
+            _save(fig, directory, "cell_traction_parts.png" if len(specs) == 1
+                  else f"{spec.name}_traction_parts.png", written)
     return written
 
 

@@ -57,10 +57,9 @@ import gel.lagrangian as gel_lagrangian
 from femtools.functions import global_max, integrate, interpolate, owned_values, von_mises
 from femtools.interface import InterfaceNodes
 from femtools.transfer import NodalTransfer
-from gelcell.geometry import Tag
 from gelcell.parameters import CaseParameters
 
-__all__ = ["DeviceFields", "DeviceQuantities", "fields_from_device", "fields_from_monolithic", "summarize",
+__all__ = ["DeviceFields", "DeviceQuantities", "combine_cells", "fields_from_device", "fields_from_monolithic", "summarize",
            "gamma_profiles", "relative_differences", "flat_quantities"]
 
 
@@ -80,6 +79,20 @@ class DeviceFields:
     cell_tags: typing.Any = None
     #: finite kinematics: the fluid mesh's displacement to the current domain (solver units, d L0)
     fluid_mesh_displacement: fem.Function | None = None
+    #: the device's :class:`gelcell.boundaries.DeviceLayout` (cells, interfaces); None: from ``params``
+    layout: typing.Any = None
+    #: cell tags of the cell mesh (which cell each element belongs to); None: one cell
+    cell_regions: typing.Any = None
+
+    def __post_init__(self):
+        if self.layout is None:
+            from gelcell.boundaries import device_layout
+            self.layout = device_layout(self.params)
+
+    @property
+    def cells(self) -> list:
+        """The :class:`gelcell.geometry.CellSpec` of every cell (empty without cells)."""
+        return list(self.layout.cells) if self.cell_displacement is not None else []
 
     @property
     def comm(self) -> MPI.Comm:
@@ -125,7 +138,8 @@ def fields_from_device(device) -> DeviceFields:
         pore_pressure=gel.pore_pressure(),
         cell_displacement=None if device.cell is None else device.cell.displacement,
         fluid_tags=fluid_tags, gel_tags=gel_tags, cell_tags=cell_tags,
-        fluid_mesh_displacement=getattr(device.fluid, "mesh_displacement", None))
+        fluid_mesh_displacement=getattr(device.fluid, "mesh_displacement", None),
+        layout=device.mesh.layout, cell_regions=device.mesh.cell_tags)
 
 
 def _region_spaces(msh):
@@ -146,7 +160,7 @@ def fields_from_monolithic(solver, device_mesh, params: CaseParameters) -> Devic
             NodalTransfer(src.function_space, dst.function_space).apply(src, dst)
             out[name] = dst
     u_c, cell_tags = None, None
-    if params.with_cell:
+    if device_mesh.cells:
         cell_mesh, cell_tags = device_mesh.region("cell")
         Vv, _ = _region_spaces(cell_mesh)
         src = solver.field("u")
@@ -154,7 +168,8 @@ def fields_from_monolithic(solver, device_mesh, params: CaseParameters) -> Devic
     return DeviceFields(params=params, fluid_velocity=out["V"], fluid_pressure=out["P"],
                         interstitial_velocity=out["v_f"], displacement=out["u"], pore_pressure=out["p"],
                         cell_displacement=u_c, fluid_tags=fluid_tags, gel_tags=gel_tags, cell_tags=cell_tags,
-                        fluid_mesh_displacement=out.get("fluid_motion"))
+                        fluid_mesh_displacement=out.get("fluid_motion"), layout=device_mesh.layout,
+                        cell_regions=device_mesh.cell_tags)
 
 
 # -- evaluation helpers ----------------------------------------------------------
@@ -198,9 +213,34 @@ class _PointValues:
         return vmin, vmax, where
 
 
-def _cell_geometry(params: CaseParameters):
-    g = params.geometry
-    return np.asarray(g.cell_centre, dtype=float), 0.5 * float(g.cell_diameter)
+def _cell_geometry(cell) -> tuple[np.ndarray, float]:
+    """Centre and radius of a :class:`gelcell.geometry.CellSpec`."""
+    return np.asarray(cell.centre, dtype=float), 0.5 * float(cell.diameter)
+
+
+def _entity_mask(space, cells: np.ndarray, n: int) -> np.ndarray:
+    """Boolean mask of the first ``n`` dofs (blocks) of ``space`` that belong to ``cells``."""
+    mask = np.zeros(n, dtype=bool)
+    dofs = np.unique(np.hstack([space.dofmap.cell_dofs(c) for c in cells])) if len(cells) else np.empty(0, int)
+    dofs = dofs[dofs < n]
+    mask[dofs] = True
+    return mask
+
+
+def combine_cells(states: list[dict]) -> dict:
+    """The extremes over cells: the centroid displacement of the cell that moves most, the largest
+    maxima and the widest von Mises ranges (one cell: its own values)."""
+    if len(states) == 1:
+        return dict(states[0])
+    out = {"centroid_displacement": list(max(states, key=lambda c: math.hypot(*c["centroid_displacement"]))
+                                         ["centroid_displacement"]),
+           "max_displacement": max(c["max_displacement"] for c in states)}
+    for key in ("von_mises_strain", "von_mises_stress"):
+        out[key] = [min(c[key][0] for c in states), max(c[key][1] for c in states)]
+    if all("max_traction_von_mises" in c for c in states):
+        out["max_traction_von_mises"] = {k: max(c["max_traction_von_mises"][k] for c in states)
+                                         for k in states[0]["max_traction_von_mises"]}
+    return out
 
 
 def _assemble(form, comm) -> float:
@@ -255,6 +295,24 @@ class DeviceQuantities:
             sigma_c = cell_forms.cauchy_stress(uc, k(p.mu_c), k(p.lambda_c), dc, sc)
             self._expressions["strain"] = self.cell_points.compile(von_mises(cell_forms.green_lagrange(uc, dc)))
             self._expressions["stress"] = self.cell_points.compile(von_mises(sigma_c))
+            # several cells: integrals over each cell's elements, extrema over each cell's points and nodes
+            self._cell_parts = []
+            cells = fields.cells
+            if len(cells) > 1:
+                ct = fields.cell_regions
+                dx_k = ufl.Measure("dx", domain=cm, subdomain_data=ct)
+                n_dg = self.cell_points.points.shape[0]
+                Vc = uc.function_space
+                n_p2 = Vc.dofmap.index_map.size_local
+                for spec in cells:
+                    elements = ct.find(spec.region_tag)
+                    self._cell_parts.append({
+                        "spec": spec,
+                        "centroid_x": fem.form(uc[0] * dx_k(spec.region_tag)),
+                        "centroid_y": fem.form(uc[1] * dx_k(spec.region_tag)),
+                        "area": _assemble(fem.form(fem.Constant(cm, 1.0) * dx_k(spec.region_tag)), comm),
+                        "points": _entity_mask(self.cell_points.space, elements, n_dg),
+                        "nodes": _entity_mask(Vc, elements, n_p2)})
 
     def _integral(self, name: str) -> float:
         return _assemble(self._forms[name], self.comm)
@@ -265,22 +323,42 @@ class DeviceQuantities:
             self._expressions[name] = self.gel_points.compile(expr)
         return self._expressions[name]()
 
-    def cell_state(self) -> dict | None:
-        """Centroid, max displacement and the von Mises ranges of the cell (paper units)."""
+    def cell_states(self) -> list[dict]:
+        """Per cell: centroid, max displacement and the von Mises ranges (paper units)."""
         f = self.fields
         if f.cell_displacement is None:
-            return None
+            return []
         p = f.params
         d, s = p.displacement_scale, p.stress_scale
-        centroid = [d * self._integral(f"centroid_{x}") / self._area["cell"] for x in "xy"]
-        if p.case == "normal":
-            # the mesh holds the lower half of a cell cut by the symmetry line y = H: the whole
-            # cell's centroid moves along the line (its mirror half moves the opposite way in y)
-            centroid[1] = 0.0
-        e_min, e_max, _ = self.cell_points.extrema(self._expressions["strain"]())
-        s_min, s_max, _ = self.cell_points.extrema(self._expressions["stress"]())
-        return {"centroid_displacement": centroid, "max_displacement": d * _max_norm(f.cell_displacement),
-                "von_mises_strain": [e_min, e_max], "von_mises_stress": [s * s_min, s * s_max]}
+        strain, stress = self._expressions["strain"](), self._expressions["stress"]()
+        cells = f.cells
+        if len(cells) <= 1:
+            parts = [{"spec": cells[0] if cells else None, "centroid_x": None, "points": None, "nodes": None}]
+        else:
+            parts = self._cell_parts
+        out = []
+        for part in parts:
+            spec = part["spec"]
+            if part["centroid_x"] is None:
+                centroid = [d * self._integral(f"centroid_{x}") / self._area["cell"] for x in "xy"]
+                max_u = d * _max_norm(f.cell_displacement)
+            else:
+                centroid = [d * _assemble(part[f"centroid_{x}"], self.comm) / part["area"] for x in "xy"]
+                norms = np.linalg.norm(owned_values(f.cell_displacement), axis=1)
+                max_u = d * global_max(norms[part["nodes"]], self.comm)
+            # a cell cut by a symmetry line: the whole (mirrored) cell's centroid moves along the line
+            for comp in (spec.symmetry if spec is not None else ()):
+                centroid[comp] = 0.0
+            e_min, e_max, _ = self.cell_points.extrema(strain, part["points"])
+            s_min, s_max, _ = self.cell_points.extrema(stress, part["points"])
+            out.append({"centroid_displacement": centroid, "max_displacement": max_u,
+                        "von_mises_strain": [e_min, e_max], "von_mises_stress": [s * s_min, s * s_max]})
+        return out
+
+    def cell_state(self) -> dict | None:
+        """Centroid, max displacement and the von Mises ranges, extremes over the cells (paper units)."""
+        states = self.cell_states()
+        return combine_cells(states) if states else None
 
     def volume_change(self) -> dict:
         d = self.fields.params.displacement_scale
@@ -340,18 +418,23 @@ class DeviceQuantities:
                 "max_network_von_mises": s * vm_net_max,
                 "max_network_von_mises_location": vm_net_where,
             },
-            "cell": self.cell_state(),
+            "cell": None,
         }
-        if out["cell"] is not None:
-            # traction parts: von Mises of each stress part in the gel within one diameter of the cell
-            centre, radius = _cell_geometry(p)
-            near = np.linalg.norm(gel_points.points - centre, axis=1) <= radius + 2 * radius * (1 + 1e-9)
+        states = self.cell_states()
+        if states:
+            # traction parts: von Mises of each stress part in the gel within one diameter of each cell
             I = ufl.Identity(2)
             parts = {"pressure": -pp * I, "brinkman": (1 - self._phi_s) * self._sigma_f,
                      "network": self._phi_s * self._sigma_s, "total": f.gel_forms.total_stress(v_f, u, pp, c)}
-            out["cell"]["max_traction_von_mises"] = {
-                k: s * gel_points.extrema(self._expression(f"part_{k}", von_mises(e)), near)[1]
-                for k, e in parts.items()}
+            values = {k: self._expression(f"part_{k}", von_mises(e)) for k, e in parts.items()}
+            cells = f.cells
+            for spec, state in zip(cells, states):
+                centre, radius = _cell_geometry(spec)
+                near = np.linalg.norm(gel_points.points - centre, axis=1) <= radius + 2 * radius * (1 + 1e-9)
+                state["max_traction_von_mises"] = {k: s * gel_points.extrema(v, near)[1] for k, v in values.items()}
+            out["cell"] = combine_cells(states)
+            out["cells"] = [{"name": spec.name, "interface": spec.interface, "centre": list(spec.centre),
+                             "diameter": spec.diameter, **state} for spec, state in zip(cells, states)]
         out["gel"].update(self.volume_change())
         out["si"] = _to_si(out, p)
         return out
@@ -378,16 +461,19 @@ def _to_si(out: dict, p: CaseParameters) -> dict:
                   "local_volume_change_magnitude": g["local_volume_change_magnitude"] * L * L,
                   "relative_volume_change_below_gamma1": g["relative_volume_change_below_gamma1"],
                   "volume_change_share_of_cell": g["volume_change_share_of_cell"]}}
-    cl = out["cell"]
-    if cl is not None:
-        si["cell"] = {"centroid_displacement": [x * L for x in cl["centroid_displacement"]],
-                      "max_displacement": cl["max_displacement"] * L,
-                      "von_mises_strain": list(cl["von_mises_strain"]),
-                      "von_mises_stress": [x * S for x in cl["von_mises_stress"]],
-                      "max_traction_von_mises": {k: v * S for k, v in cl["max_traction_von_mises"].items()}}
-    else:
-        si["cell"] = None
+    si["cell"] = None if out["cell"] is None else _cell_si(out["cell"], L, S)
+    if out.get("cells"):
+        si["cells"] = [{"name": c["name"], "centre": [x * L for x in c["centre"]], "diameter": c["diameter"] * L,
+                        **_cell_si(c, L, S)} for c in out["cells"]]
     return si
+
+
+def _cell_si(cl: dict, L: float, S: float) -> dict:
+    return {"centroid_displacement": [x * L for x in cl["centroid_displacement"]],
+            "max_displacement": cl["max_displacement"] * L,
+            "von_mises_strain": list(cl["von_mises_strain"]),
+            "von_mises_stress": [x * S for x in cl["von_mises_stress"]],
+            "max_traction_von_mises": {k: v * S for k, v in cl["max_traction_von_mises"].items()}}
 
 
 def gamma_profiles(fields: DeviceFields, interface: str = "Gamma1") -> dict[str, np.ndarray]:
@@ -396,7 +482,7 @@ def gamma_profiles(fields: DeviceFields, interface: str = "Gamma1") -> dict[str,
     Rows are sorted along the interface (by X on Gamma1 of the shear device,
     by Y on the vertical interfaces of the normal-flow device).
     """
-    tag = int(Tag.GAMMA1 if interface == "Gamma1" else Tag.GAMMA3)
+    tag = int(fields.layout.fluid_interfaces[interface])
     d = fields.params.displacement_scale
     nodes = InterfaceNodes(fields.interstitial_velocity.function_space, fields.gel_tags, tag)
     vf = nodes.from_function(fields.interstitial_velocity)

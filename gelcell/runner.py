@@ -19,7 +19,6 @@ from mpi4py import MPI
 
 import coupling as cp
 from femtools.io import atomic_directory, check_output_target
-from gelcell.boundaries import device_boundaries
 from gelcell.checks import format_residuals, interface_residuals
 from gelcell.device import Device, coupling_config, default_robin_coefficient
 from gelcell.geometry import build_device
@@ -120,8 +119,9 @@ def solve_monolithic(params: CaseParameters, comm: MPI.Comm = MPI.COMM_WORLD, ch
     check_case(params)
     dev_mesh = build_device(params, comm, whole=True)
     msh, ct, ft = dev_mesh.whole
-    b = device_boundaries(params.case, params.with_cell, getattr(params.geometry, "channel_height", 0.2))
-    solver = MonolithicSolver(msh, ct, ft, b, monolithic_coefficients(params))
+    layout = dev_mesh.layout
+    solver = MonolithicSolver(msh, ct, ft, layout.boundaries, monolithic_coefficients(params),
+                              cell_region_tags=layout.cell_region_tags or None)
     t1 = time.perf_counter()
     iterations = solver.solve()
     t_solve = time.perf_counter() - t1
@@ -199,6 +199,8 @@ def report(summary: dict, params: CaseParameters) -> dict:
     out.update(_flat(gel, "gel", _GEL_KEYS))
     out.update(_flat(cell, "cell", _CELL_KEYS))
     out["si"] = {"units": si["units"], **_flat(si["gel"], "gel", _GEL_KEYS), **_flat(si["cell"], "cell", _CELL_KEYS)}
+    if "cells" in si:
+        out["si"]["cells"] = si["cells"]
     out["parameters"] = params.to_dict()
     out["cell_moduli_note"] = (f"cell moduli mu_c = {params.cell.mu_c:g} Pa, lambda_c = {params.cell.lambda_c:g} Pa "
                                f"= {params.cell_moduli_multiple:g} x the gel's drained modulus phi_s0 mu_s")

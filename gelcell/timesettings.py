@@ -46,6 +46,8 @@ def time_scales(params: CaseParameters) -> dict[str, float]:
     ph, g = params.physics, params.geometry
     if params.case == "shear":
         depth = g.radius * (1.0 - math.cos(g.half_angle))
+    elif params.case == "file":
+        depth = g.layout.gel_depth          # the gel's area over the fluid-gel interfaces' length
     else:
         depth = 0.5 * g.gel_length
     modulus = ph.phi_s0 * (2.0 + ph.lambda_s)

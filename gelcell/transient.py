@@ -41,7 +41,6 @@ from coupling.serialization import load_npz, save_npz
 from femtools.serialize import CanonicalOrder, MixedCanonical
 from femtools.timestepping import WindowClock
 from femtools.transfer import NodalTransfer
-from gelcell.boundaries import device_boundaries
 from gelcell.device import Device
 from gelcell.geometry import build_device
 from gelcell.monolithic import MonolithicSolver
@@ -121,8 +120,9 @@ class MonolithicBackend:
         self.params, self.comm, self.inflow = params, comm, inflow
         self.mesh = build_device(params, comm, whole=True)
         msh, ct, ft = self.mesh.whole
-        b = device_boundaries(params.case, params.with_cell, getattr(params.geometry, "channel_height", 0.2))
-        self.solver = MonolithicSolver(msh, ct, ft, b, monolithic_coefficients(params), transient=True)
+        layout = self.mesh.layout
+        self.solver = MonolithicSolver(msh, ct, ft, layout.boundaries, monolithic_coefficients(params), transient=True,
+                                       cell_region_tags=layout.cell_region_tags or None)
         self.clock = WindowClock(time_scheme)
         self._transfers: dict = {}
         self.fields = self._region_fields()
@@ -149,7 +149,8 @@ class MonolithicBackend:
                             interstitial_velocity=out["gel/v_f"], displacement=out["gel/u"],
                             pore_pressure=out["gel/p"], cell_displacement=out.get("cell/u"),
                             fluid_tags=tags["fluid"], gel_tags=tags["gel"], cell_tags=tags.get("cell"),
-                            fluid_mesh_displacement=out.get("fluid/fluid_motion"))
+                            fluid_mesh_displacement=out.get("fluid/fluid_motion"), layout=self.mesh.layout,
+                            cell_regions=self.mesh.cell_tags)
 
     def update_fields(self) -> None:
         f = self.fields

@@ -160,7 +160,8 @@ def check_mesh_size(params: CaseParameters, memory: int | None = None) -> dict:
 def check_case(params: CaseParameters) -> None:
     """Every check that must pass before a case is meshed or solved."""
     check_representable(params)
-    check_mesh_size(params)
+    if params.case != "file":        # a geometry file's mesh size is the file's: no closed-form estimate
+        check_mesh_size(params)
 
 
 # --------------------------------------------------------------------------- after solving
