@@ -222,6 +222,13 @@ def format_summary(summary: dict) -> str:
             continue
         si = _get(summary["si"][key], rest)
         lines.append(f"{label:32s} {v:14.6e} {si:14.6e}  {_UNITS[kind]}")
+    cells = summary.get("cells") or []
+    if len(cells) > 1:
+        lines.append("per cell (dimensionless): centroid displacement x, y; von Mises strain max; stress max")
+        for cl in cells:
+            lines.append(f"  {cl['name']:8s} at ({cl['centre'][0]:.4g}, {cl['centre'][1]:.4g}) "
+                         f"{cl['centroid_displacement'][0]:12.4e} {cl['centroid_displacement'][1]:12.4e} "
+                         f"{cl['von_mises_strain'][1]:12.4e} {cl['von_mises_stress'][1]:12.4e}")
     c = summary.get("coupling")
     if c and "iterations" in c:
         lines.append(f"coupling: {c['scheme']} / {c['acceleration']}, {c['iterations']} iterations, "
@@ -248,7 +255,9 @@ def run_case(params: CaseParameters, out: str | None, *, monolithic: bool = Fals
     say = (lambda msg: print(msg, file=stream, flush=True)) if comm.rank == 0 else (lambda msg: None)
     if out is not None:
         check_output_target(out, comm)
-    say(f"gelcell: {params.case} flow, {'with' if params.with_cell else 'without'} cell, "
+    device = (f"device {os.path.basename(params.geometry.file)}" if params.case == "file" else f"{params.case} flow")
+    n_cells = len(params.geometry.cell_list()) if params.with_cell else 0
+    say(f"gelcell: {device}, {'without cell' if not n_cells else 'with cell' if n_cells == 1 else f'{n_cells} cells'}, "
         f"{'monolithic' if monolithic else f'partitioned ({scheme}, {acceleration})'}")
     if monolithic:
         run = solve_monolithic(params, comm)
