@@ -211,7 +211,7 @@ def _fluid_interface_residuals(fields: DeviceFields, name: str, tag: int) -> dic
     s = p.stress_scale
     ph = p.physics
     visc, eta, beta = ph.ca / s, ph.eta, ph.beta
-    v_f, u = fields.interstitial_velocity, fields.displacement
+    v_f, u, gm = fields.interstitial_velocity, fields.displacement, fields.gel_mesh
     r = _interface_reactions(fields, name, tag)
     c, t_fluid, F_f_load, T_gel_load = r["c"], r["t_fluid"], r["F_load"], r["G_load"]
     V_on_gel, gel_nodes, proj, Vg = r["V_on_gel"], r["gel_nodes"], r["proj"], r["Vg"]
