@@ -341,6 +341,30 @@ def _components(surfaces: list, info: GeometryInfo) -> list[set]:
     return list(comps.values())
 
 
+#: a gap between a cell and another cell or a gel boundary below this fraction of the cell's size is
+#: taken as touching
+TOUCH = 1e-3
+
+
+def _distance(points: np.ndarray, polyline: np.ndarray) -> float:
+    """Smallest distance from ``points`` to the segments of ``polyline``."""
+    if len(polyline) == 0 or len(points) == 0:
+        return math.inf
+    if len(polyline) == 1:
+        return float(np.linalg.norm(points - polyline[0], axis=1).min())
+    a, b = polyline[:-1], polyline[1:]
+    t = b - a
+    ll = np.maximum((t * t).sum(axis=1), 1e-300)
+    rel = points[:, None, :] - a[None, :, :]
+    s = np.clip((rel * t[None]).sum(axis=2) / ll[None], 0.0, 1.0)
+    proj = a[None] + s[..., None] * t[None]
+    return float(np.linalg.norm(points[:, None, :] - proj, axis=2).min())
+
+
+def _on_loops(point, loops, tol) -> bool:
+    return any(_distance(point[None, :], np.vstack([lp, lp[:1]])) <= tol for lp in loops)
+
+
 def _where(points: np.ndarray) -> str:
     m = points[len(points) // 2]
     return f"near ({m[0]:.4g}, {m[1]:.4g})"
@@ -451,29 +475,46 @@ def _analyse(info: GeometryInfo) -> FileLayout:
     if problems:
         raise ParameterError(f"{where}:\n" + "\n".join(problems))
 
-    # ---- cells: touching and overlapping, their shape
-    tol = 1e-7 * info.scale
+    # ---- cells: touching and overlapping, their shape.  A gap below TOUCH x the cell's size counts
+    # as touching (it could not be meshed); the samples of a curve are joined by straight segments.
     cell_specs = []
     others = {c: kind_of[c][1] for c in kind_of}
     n_cells = len(parsed.cells)
     boundary_pts = {}
-    for k, (name, _, ents) in enumerate(parsed.cells, start=1):
+    gel_loops = [lp for s in gel for lp in info.surface_polygons[s]]
+    cell_loops = {k: [lp for s in ents for lp in info.surface_polygons[s]]
+                  for k, (_, _, ents) in enumerate(parsed.cells, start=1)}
+    for k in range(1, n_cells + 1):
         curves = gamma2.get(k, []) + cell_sym.get(k, [])
         boundary_pts[k] = np.vstack([info.curve_points[c] for c in curves]) if curves else np.zeros((0, 2))
-        # touching a named boundary at a point
+    for k, (name, _, ents) in enumerate(parsed.cells, start=1):
+        curves = gamma2.get(k, []) + cell_sym.get(k, [])
+        size = float(np.ptp(boundary_pts[k], axis=0).max()) if len(boundary_pts[k]) else info.scale
+        tol = TOUCH * size
+        cut = bool(cell_sym.get(k))
         corners = {p for c in curves for p in info.curve_ends[c]}
         for c, gname in others.items():
-            if c in cell_sym.get(k, []):
+            if c in cell_sym.get(k, []) or (cut and kind_of[c][0] == "symmetry"):
                 continue
             shared = corners & set(info.curve_ends[c])
-            if shared and not (kind_of[c][0] == "symmetry" and cell_sym.get(k)):
-                problems.append(f"cell '{name}' touches the boundary '{gname}' at point {sorted(shared)[0]}: a cell "
-                                f"must lie inside the gel with a gap to its boundaries")
-            elif c not in cell_sym.get(k, []) and len(boundary_pts[k]) and len(info.curve_points[c]):
-                d = np.min(np.linalg.norm(boundary_pts[k][:, None, :] - info.curve_points[c][None, :, :], axis=2))
-                if d <= tol and not (kind_of[c][0] == "symmetry" and cell_sym.get(k)):
-                    problems.append(f"cell '{name}' touches or overlaps the boundary '{gname}' "
-                                    f"{_where(info.curve_points[c])}")
+            gap = _distance(boundary_pts[k], info.curve_points[c])
+            if shared or gap <= tol:
+                problems.append(f"cell '{name}' touches the boundary '{gname}' {_where(info.curve_points[c])} "
+                                f"(gap {gap:.3g}): a cell must lie inside the gel with a gap to its boundaries")
+        # a cell crossing a gel boundary: points just outside its surface are not in the gel
+        ring = np.vstack([info.curve_points[c] for c in gamma2.get(k, [])]) if gamma2.get(k) else np.zeros((0, 2))
+        if len(ring):
+            mid = ring.mean(axis=0)
+            out = ring - mid
+            out /= np.maximum(np.linalg.norm(out, axis=1), 1e-300)[:, None]
+            probes = ring + 2 * tol * out
+            # (probes in or next to another cell belong to the cell-cell checks below)
+            near_other = lambda q: any(_inside(q, cell_loops[j]) or _distance(q[None, :], boundary_pts[j]) <= 4 * tol  # noqa: E731
+                                       for j in cell_loops if j != k)
+            sym_lines = [info.curve_points[c] for c in cell_sym.get(k, [])]
+            near_line = lambda q: any(_distance(q[None, :], ln) <= 4 * tol for ln in sym_lines)  # noqa: E731
+            if not all(_inside(q, gel_loops) or near_other(q) or near_line(q) for q in probes[::2]):
+                problems.append(f"cell '{name}' overlaps a boundary of the gel (part of it lies outside the gel)")
         loops = [lp for s in ents for lp in info.surface_polygons[s]]
         area, centre = 0.0, np.zeros(2)
         for s in ents:
@@ -502,13 +543,15 @@ def _analyse(info: GeometryInfo) -> FileLayout:
                                    interface=gamma2_name(k, n_cells), centre=(float(centre[0]), float(centre[1])),
                                    diameter=2.0 * radius, symmetry=tuple(sorted(set(sym)))))
         for j in range(1, k):
-            other_loops = [lp for s in parsed.cells[j - 1][2] for lp in info.surface_polygons[s]]
-            if (any(_inside(p, other_loops) for p in boundary_pts[k][::4])
-                    or any(_inside(p, loops) for p in boundary_pts[j][::4])):
-                problems.append(f"cell '{name}' overlaps cell '{parsed.cells[j - 1][0]}'")
-            elif len(boundary_pts[j]) and len(boundary_pts[k]) and np.min(np.linalg.norm(
-                    boundary_pts[k][:, None, :] - boundary_pts[j][None, :, :], axis=2)) <= tol:
-                problems.append(f"cell '{name}' touches cell '{parsed.cells[j - 1][0]}'")
+            other = parsed.cells[j - 1][0]
+            deep = [p for p in boundary_pts[k][::2] if _inside(p, cell_loops[j])
+                    and _distance(p[None, :], boundary_pts[j]) > tol]
+            deep += [p for p in boundary_pts[j][::2] if _inside(p, cell_loops[k])
+                     and _distance(p[None, :], boundary_pts[k]) > tol]
+            if deep:
+                problems.append(f"cell '{name}' overlaps cell '{other}'")
+            elif _distance(boundary_pts[k], boundary_pts[j]) <= tol:
+                problems.append(f"cell '{name}' touches cell '{other}'")
     # ---- fluid regions: something must fix the pressure
     outlets = {c for _, _, ents, _ in parsed.curves["outlet"] for c in ents}
     ifaces = {c for _, _, ents, _ in parsed.curves["interface"] for c in ents}
@@ -536,7 +579,7 @@ def _analyse(info: GeometryInfo) -> FileLayout:
         if k > n_cells:
             problems.append(f"physical curve '{name}': there is no cell {k}")
             continue
-        expected = set(gamma2.get(k, [])) | set(cell_sym.get(k, []))
+        expected = set(gamma2.get(k, []))        # a flat edge on a symmetry line is 'symmetry'
         if set(ents) != expected:
             problems.append(f"physical curve '{name}' = curves {sorted(ents)} is not the boundary of "
                             f"'{cell_names[k]}' (curves {sorted(expected)})")

@@ -1,0 +1,115 @@
+"""Geometry files: every convention error is refused before meshing, naming the group or entity, with nothing written.
+
+Each case breaks the small valid device ``tests/geometry_files/small.geo`` in one way and runs
+``gelcell run --geometry`` in-process: exit code 2 (bad input, ``gelcell.errors``), one message
+naming the problem, and the output directory never created.
+"""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from gelcell.cli import main
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+SMALL = open(os.path.join(HERE, "geometry_files", "small.geo")).read()
+
+SECOND_CELL = """
+Point(20) = {X2, -0.3, 0, lcc}; Point(21) = {X2 + 0.05, -0.3, 0, lcc}; Point(22) = {X2 - 0.05, -0.3, 0, lcc};
+Circle(20) = {21, 20, 22}; Circle(21) = {22, 20, 21};
+Curve Loop(4) = {20, 21}; Plane Surface(4) = {4};
+"""
+POCKET = """
+Point(30) = {2.5, 0, 0, lc}; Point(31) = {3, 0, 0, lc}; Point(32) = {3, 0.3, 0, lc}; Point(33) = {2.5, 0.3, 0, lc};
+Line(30) = {30, 31}; Line(31) = {31, 32}; Line(32) = {32, 33}; Line(33) = {33, 30};
+Curve Loop(5) = {30, 31, 32, 33}; Plane Surface(5) = {5};
+"""
+
+# (id, [(old, new), ...], words the message must contain)
+CASES = [
+    ("misspelled group", [('Physical Curve("outlet")', 'Physical Curve("outlett")')],
+     ["'outlett'", "did you mean 'outlet'"]),
+    ("missing group", [('Physical Surface("gel") = {2};', "")], ["missing physical surface 'gel'"]),
+    ("curve in two groups", [('Physical Curve("wall") = {3};', 'Physical Curve("wall") = {3, 2};')],
+     ["curve 2 is in two physical groups", "'outlet'", "'wall'"]),
+    ("interface sides do not share nodes",
+     [("Curve Loop(2) = {5, 6, 7, 1};", "Line(8) = {1, 2}; Curve Loop(2) = {5, 6, 7, 8};"),
+      ('Physical Curve("interface") = {1};', 'Physical Curve("interface") = {1, 8};')],
+     ["interface 'interface'", "do not share nodes"]),
+    ("cell overlaps another cell",
+     [("//EXTRA", SECOND_CELL.replace("X2", "1.07")), ("Plane Surface(2) = {2, 3};", "Plane Surface(2) = {2, 3, 4};"),
+      ('Physical Surface("cell") = {3};', 'Physical Surface("cell_1") = {3}; Physical Surface("cell_2") = {4};')],
+     ["cell 'cell_2' overlaps cell 'cell_1'"]),
+    ("cell touches another cell",
+     [("//EXTRA", SECOND_CELL.replace("X2", "1.1")), ("Plane Surface(2) = {2, 3};", "Plane Surface(2) = {2, 3, 4};"),
+      ('Physical Surface("cell") = {3};', 'Physical Surface("cell_1") = {3}; Physical Surface("cell_2") = {4};')],
+     ["cell 'cell_2' touches cell 'cell_1'"]),
+    ("cell touches a gel boundary", [("CY = -0.3;", "CY = -0.55;")], ["cell 'cell' touches the boundary 'held'"]),
+    ("cell crosses a gel boundary", [("CY = -0.3;", "CY = -0.58;")], ["cell 'cell' overlaps a boundary of the gel"]),
+    ("no outlet", [('Physical Curve("outlet") = {2};', ""), ('Physical Curve("wall") = {3};',
+                                                            'Physical Curve("wall") = {3, 2};')],
+     ["no physical curve 'outlet'", "pressure is undetermined"]),
+    ("enclosed fluid", [("//EXTRA", POCKET), ('Physical Surface("fluid") = {1};', 'Physical Surface("fluid") = {1, 5};'),
+                        ('Physical Curve("wall") = {3};', 'Physical Curve("wall") = {3, 30, 31, 32};'),
+                        ('Physical Curve("outlet") = {2};', 'Physical Curve("outlet") = {2}; '
+                                                            'Physical Curve("inlet_2") = {33};')],
+     ["surface(s) [5]", "enclosed and nothing fixes its pressure"]),
+    ("element order 3", [("//EXTRA", "Mesh.ElementOrder = 3;")], ["Mesh.ElementOrder = 3", "orders 1 and 2"]),
+    ("quadrilaterals", [("//EXTRA", "Mesh.RecombineAll = 1;")], ["unsupported element type", "triangles"]),
+    ("curve in no group", [('Physical Curve("wall") = {3};', "")], ["curve 3", "in no physical group"]),
+    ("bad inflow profile", [('"inlet:uniform:0.5"', '"inlet:plug:0.5"')], ["'inlet:plug:0.5'", "'parabolic' or 'uniform'"]),
+]
+
+
+def _write(tmp_path, edits) -> str:
+    text = SMALL
+    for old, new in edits:
+        assert old in text, old
+        text = text.replace(old, new)
+    path = tmp_path / "device.geo"
+    path.write_text(text)
+    return str(path)
+
+
+@pytest.mark.parametrize("edits,words", [c[1:] for c in CASES], ids=[c[0] for c in CASES])
+def test_broken_file_is_refused_before_meshing(tmp_path, capsys, edits, words):
+    path = _write(tmp_path, edits)
+    out = tmp_path / "out"
+    code = main(["run", "--geometry", path, "--quiet", "--no-figures", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert "gelcell run: error:" in err and os.path.basename(path) in err
+    for word in words:
+        assert word in err, (word, err)
+    assert sorted(os.listdir(tmp_path)) == ["device.geo"]       # nothing written, not even a temporary
+
+
+def test_valid_file_reads_its_convention():
+    """The unbroken file: its groups become gelcell's conditions, its cell a CellSpec."""
+    from gelcell.boundaries import SegmentInflow
+    from gelcell.parameters import CaseParameters
+    p = CaseParameters.from_dict({"geometry": {"file": os.path.join(HERE, "geometry_files", "small.geo")}})
+    assert p.case == "file" and p.with_cell
+    layout = p.geometry.layout.layout
+    (cell,) = layout.cells
+    assert cell.name == "cell" and cell.interface == "Gamma2"
+    assert cell.centre == pytest.approx((1.0, -0.3), abs=1e-12) and cell.diameter == pytest.approx(0.1, rel=1e-12)
+    assert layout.fluid_interfaces == {"Gamma1": 21}
+    profile = [v for t, v in layout.boundaries.fluid_velocity if isinstance(v, SegmentInflow)][0]
+    import numpy as np
+    # uniform inflow of 0.5 V0 into the channel (+x) on the inlet x = 0
+    values = profile(np.array([[0.0, 0.0], [0.05, 0.25], [0.0, 0.0]]))
+    assert np.allclose(values, [[0.5, 0.5], [0.0, 0.0]])
+
+
+def test_cells_of_a_builtin_device_are_checked_before_meshing(capsys, tmp_path):
+    out = tmp_path / "out"
+    code = main(["run", "shear", "--cells", "2.0,-0.3,0.06", "2.05,-0.3,0.06", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and "'cells[0]' and 'cells[1]'" in err and "overlap" in err
+    code = main(["run", "shear", "--cells", "2.0,-0.01,0.06", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and "cells[0]" in err and "Γ1" in err
+    assert not out.exists()
