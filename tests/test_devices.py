@@ -1,0 +1,131 @@
+"""Devices of one's own and several cells, against references that do not come from this code path.
+
+* A geometry file that holds the built-in shear device's own mesh (``export_builtin``) gives the
+  built-in run's results: same mesh, so equal to the coupling tolerance (asserted to 1e-8).
+* Several cells (built-in shear device, ``cells``): two cells 13 diameters apart each move and
+  strain like the same cell alone, to the size of their interaction, and two cells a third of a
+  diameter apart do not.  The size of the interaction: a cell carries the drag of the interstitial
+  flow around it to the network as a force dipole, whose displacement decays like 1/r in 2-D, so a
+  neighbour at centre distance s changes a cell's response by O(d / (2 s)) (0.0375 for the far
+  pair); the close pair must differ by more than that bound and by more than three times the far
+  pair's measured change.
+* The partitioned result of the close pair equals the monolithic reference to 1e-6.
+* 1 and 2 ranks agree on a device from a geometry file with two cells (tests/mpi_scripts).
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+from mpi_run import run_mpi
+from gelcell.parameters import CaseParameters
+from gelcell.results import flat_quantities
+from gelcell.runner import solve_monolithic, solve_partitioned
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+SIZE = 3.0
+FAR = [(1.6, -0.25, 0.06), (2.4, -0.25, 0.06)]
+CLOSE = [(1.965, -0.25, 0.06), (2.045, -0.25, 0.06)]
+CELL_KEYS = ("centroid_displacement", "max_displacement", "von_mises_strain")
+
+
+def _shear(cells=None) -> CaseParameters:
+    p = CaseParameters.default("shear").with_mesh_size(SIZE)
+    if cells is None:
+        return p
+    return p.replace(geometry=p.geometry.__class__(cells=tuple(cells)))
+
+
+@pytest.fixture(scope="module")
+def runs():
+    cache = {}
+
+    def get(name, cells, monolithic=False):
+        if name not in cache:
+            solve = solve_monolithic if monolithic else solve_partitioned
+            kw = {} if monolithic else {"verbose": False}
+            cache[name] = solve(_shear(cells), checks=False, **kw).summary
+        return cache[name]
+    return get
+
+
+def _change(a: dict, b: dict, key: str) -> float:
+    """Relative change of a cell quantity (vectors and ranges by their norm)."""
+    va, vb = np.atleast_1d(a[key]), np.atleast_1d(b[key])
+    return float(np.linalg.norm(va - vb) / np.linalg.norm(vb))
+
+
+def test_geometry_file_with_the_builtin_mesh_gives_the_builtin_results(tmp_path):
+    from gelcell.geometryfile import export_builtin
+    builtin = _shear()
+    path = str(tmp_path / "shear.msh")
+    export_builtin(builtin, path)
+    a = solve_partitioned(builtin, verbose=False, checks=False).summary
+    p = CaseParameters.from_dict({"geometry": {"file": path}})
+    assert p.case == "file" and p.with_cell
+    b = solve_partitioned(p, verbose=False, checks=False).summary
+    qa, qb = flat_quantities(a), flat_quantities(b)
+    assert set(qa) == set(qb)
+    worst = max(abs(qb[k] - qa[k]) / abs(qa[k]) for k in qa if qa[k] != 0)
+    assert worst <= 1e-8, worst
+    assert b["cells"][0]["centre"] == pytest.approx([2.0, -0.2], abs=1e-12)
+
+
+def test_far_apart_cells_behave_like_single_cells(runs):
+    pair = runs("far", FAR)["cells"]
+    separation = np.hypot(FAR[1][0] - FAR[0][0], FAR[1][1] - FAR[0][1])
+    bound = FAR[0][2] / (2 * separation)
+    for k, cell in enumerate(FAR):
+        alone = runs(f"far{k}", [cell])["cells"][0]
+        assert pair[k]["centre"] == pytest.approx(list(cell[:2]))
+        for key in CELL_KEYS:
+            assert _change(pair[k], alone, key) <= bound, (k, key, _change(pair[k], alone, key), bound)
+
+
+def test_close_cells_differ_from_single_cells(runs):
+    far = runs("far", FAR)["cells"]
+    far_bound = FAR[0][2] / (2 * np.hypot(FAR[1][0] - FAR[0][0], FAR[1][1] - FAR[0][1]))
+    pair = runs("close", CLOSE)["cells"]
+    for k, cell in enumerate(CLOSE):
+        alone = runs(f"close{k}", [cell])["cells"][0]
+        far_alone = runs(f"far{k}", [FAR[k]])["cells"][0]
+        for key in ("centroid_displacement", "von_mises_strain"):
+            change = _change(pair[k], alone, key)
+            assert change > far_bound and change > 3 * _change(far[k], far_alone, key), (k, key, change)
+
+
+def test_several_cells_partitioned_equals_monolithic(runs):
+    part, mono = runs("close", CLOSE), runs("close-mono", CLOSE, monolithic=True)
+    assert [c["name"] for c in part["cells"]] == ["cell_1", "cell_2"]
+    for a, b in zip(part["cells"], mono["cells"]):
+        for key in CELL_KEYS + ("von_mises_stress",):
+            assert _change(a, b, key) <= 1e-6, (a["name"], key)
+        for key, value in b["max_traction_von_mises"].items():
+            assert a["max_traction_von_mises"][key] == pytest.approx(value, rel=1e-6)
+    qa, qb = flat_quantities(part), flat_quantities(mono)
+    for key, value in qb.items():
+        assert qa[key] == pytest.approx(value, rel=1e-6, abs=1e-6 * abs(qb["gel.volume_change_below_gamma1"])
+                                        if "volume" in key else 0), key
+
+
+def test_top_level_cell_keys_are_the_extremes_over_cells(runs):
+    s = runs("close", CLOSE)
+    cells = s["cells"]
+    assert s["cell"]["max_displacement"] == max(c["max_displacement"] for c in cells)
+    assert s["cell"]["von_mises_strain"] == [min(c["von_mises_strain"][0] for c in cells),
+                                             max(c["von_mises_strain"][1] for c in cells)]
+    moved = max(cells, key=lambda c: np.hypot(*c["centroid_displacement"]))
+    assert s["cell"]["centroid_displacement"] == moved["centroid_displacement"]
+    assert s["si"]["cells"][0]["name"] == "cell_1"
+
+
+def test_user_device_same_on_one_and_two_ranks():
+    path = os.path.join(HERE, "geometry_files", "two_cells.geo")
+    serial = run_mpi("user_device.py", 1, [path])
+    parallel = run_mpi("user_device.py", 2, [path])
+    assert "cell_2.centroid_displacement[0]" in serial
+    for key, value in serial.items():
+        assert parallel[key] == pytest.approx(value, rel=1e-8, abs=1e-14 * abs(value) + 1e-300), key
