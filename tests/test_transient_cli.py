@@ -158,6 +158,11 @@ def test_sigint_keeps_the_checkpoint_and_resume_finishes(tmp_path):
     assert_same_series(read_series(out), read_series(tmp_path / "ref"), 1e-12)
 
 
+def printed_error(capsys) -> str:
+    """What the CLI printed on stderr: errors are printed once, by rank 0."""
+    return MPI.COMM_WORLD.bcast(capsys.readouterr().err, root=0)
+
+
 def main(*args):
     return cli.main(list(args))
 
@@ -182,7 +187,7 @@ BAD = [
 def test_bad_time_input_is_refused_before_meshing(tmp_path, capsys, args, name):
     out = tmp_path / "out"
     assert main("run", "shear", "--transient", *args, "--out", str(out)) == 2
-    err = capsys.readouterr().err
+    err = printed_error(capsys)
     assert name in err, err
     assert not out.exists() and not (tmp_path / "out.partial").exists()
 
@@ -198,7 +203,7 @@ def test_malformed_inflow_table_is_refused(tmp_path, capsys, text, why):
     out = tmp_path / "out"
     assert main("run", "shear", "--transient", "--inflow", f"table:{table}", "--t-end", "1e-6",
                 "--out", str(out)) == 2
-    err = capsys.readouterr().err
+    err = printed_error(capsys)
     assert "inflow" in err and why in err, err
     assert not out.exists()
 
@@ -220,13 +225,13 @@ def test_inflow_table_from_a_config_file_is_relative_to_it(tmp_path):
 
 def test_time_options_need_transient(tmp_path, capsys):
     assert main("run", "shear", "--dt", "1e-7", "--out", str(tmp_path / "o")) == 2
-    assert "--transient" in capsys.readouterr().err
+    assert "--transient" in printed_error(capsys)
 
 
 def test_resume_refuses_another_case_and_missing_checkpoints(tmp_path, capsys):
     out = tmp_path / "run"
     assert main("run", "--resume", str(out)) == 2
-    assert "nothing to resume" in capsys.readouterr().err
+    assert "nothing to resume" in printed_error(capsys)
     # a checkpoint of a shear run: resuming it as the normal-flow device is refused before meshing
     partial = tmp_path / "run.partial"
     partial.mkdir()
@@ -238,10 +243,10 @@ def test_resume_refuses_another_case_and_missing_checkpoints(tmp_path, capsys):
     (partial / "run.json").write_text(json.dumps(record, default=str))
     (partial / "checkpoint.npz").write_bytes(b"")
     assert main("run", "normal", "--mesh-size", "3", "--resume", str(out)) == 2
-    err = capsys.readouterr().err
+    err = printed_error(capsys)
     assert "another run" in err and "case" in err, err
     assert main("run", "shear", "--mesh-size", "3", "--transient", "--dt", "1e-9", "--resume", str(out)) == 2
-    assert "time settings" in capsys.readouterr().err
+    assert "time settings" in printed_error(capsys)
     assert sorted(os.listdir(partial)) == ["checkpoint.npz", "run.json"] and not out.exists()
 
 
