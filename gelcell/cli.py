@@ -152,21 +152,20 @@ def case_parameters_from_args(args: argparse.Namespace) -> CaseParameters:
 
 # --------------------------------------------------------------------------- mesh
 def _counts_table(counts: dict) -> str:
-    from gelcell.geometry import Tag
+    from gelcell.geometry import tag_value
     columns = [c for c in ("fluid", "gel", "cell", "whole") if c in counts]
     rows: list[tuple[str, str, list]] = [
         ("cells", "-", [counts[c]["cells"] for c in columns])]
-    for t in (Tag.FLUID, Tag.GEL, Tag.CELL):
-        if t.name in counts.get("whole", {}).get("cells_per_tag", {}):
-            rows.append((f"  {t.name}", str(int(t)),
-                         [counts[c]["cells"] if c == t.name.lower() else
-                          counts[c]["cells_per_tag"][t.name] if c == "whole" else None
-                          for c in columns]))
+    for name, n in counts.get("whole", {}).get("cells_per_tag", {}).items():
+        region = "cell" if name.startswith("CELL") else name.lower()
+        single = region != "cell" or sum(k.startswith("CELL") for k in counts["whole"]["cells_per_tag"]) == 1
+        rows.append((f"  {name}", str(tag_value(name)),
+                     [n if c == "whole" else counts[c]["cells"] if c == region and single else None
+                      for c in columns]))
     rows.append(("nodes(P2)", "-", [counts[c]["nodes"] for c in columns]))
-    for t in Tag:
-        vals = [counts[c]["facets"].get(t.name) for c in columns]
-        if any(v is not None for v in vals):
-            rows.append((t.name, str(int(t)), vals))
+    names = sorted({k for c in columns for k in counts[c]["facets"]}, key=tag_value)
+    for name in names:
+        rows.append((name, str(tag_value(name)), [counts[c]["facets"].get(name) for c in columns]))
     width = max(10, max(len(r[0]) for r in rows) + 2)
     lines = [f"{'':<{width}}{'tag':>5}" + "".join(f"{c:>9}" for c in columns)]
     for label, tag, vals in rows:
@@ -204,10 +203,16 @@ def cmd_mesh(args: argparse.Namespace) -> int:
                 os.chmod(os.path.join(tmp, name), 0o644)      # mkstemp makes them private
     if comm.rank == 0:
         h = params.element_sizes()
-        print(f"gelcell mesh: {params.case} device {'with' if params.with_cell else 'without'} cell, "
-              f"size factor {params.mesh.size_factor:g} (h_cell {h['h_cell']:.4g}, "
-              f"h_layer {h['h_layer']:.4g}, h_fluid {h['h_fluid']:.4g}, h_gel {h['h_gel']:.4g}), "
-              f"{comm.size} rank(s), built in {dev.build_time:.2f} s")
+        n = len(dev.cells)
+        cells = "without cell" if not n else "with cell" if n == 1 else f"with {n} cells"
+        if params.case == "file":
+            print(f"gelcell mesh: device {os.path.basename(params.geometry.file)} {cells}, the file's element "
+                  f"sizes x {params.mesh.size_factor:g}, {comm.size} rank(s), built in {dev.build_time:.2f} s")
+        else:
+            print(f"gelcell mesh: {params.case} device {cells}, "
+                  f"size factor {params.mesh.size_factor:g} (h_cell {h['h_cell']:.4g}, "
+                  f"h_layer {h['h_layer']:.4g}, h_fluid {h['h_fluid']:.4g}, h_gel {h['h_gel']:.4g}), "
+                  f"{comm.size} rank(s), built in {dev.build_time:.2f} s")
         print(_counts_table(counts))
         print(f"wrote {', '.join(sorted(f for f in os.listdir(out) if f.endswith('.xdmf')))} "
               f"(+ .h5), counts.json, parameters.json to {out}")

@@ -130,6 +130,17 @@ def tag_name(value: int) -> str:
     return str(value)
 
 
+def tag_value(name: str) -> int:
+    """The tag value of a :func:`tag_name` (inverse)."""
+    if name in Tag.__members__:
+        return int(Tag[name])
+    for prefix, make in (("GAMMA2_", gamma2_tag), ("INLET_", inlet_tag), ("CELL_", cell_region_tag),
+                         ("GAMMA", lambda k: fluid_interface_tag(k - 1))):
+        if name.startswith(prefix) and name[len(prefix):].isdigit():
+            return make(int(name[len(prefix):]))
+    return int(name)
+
+
 @dataclasses.dataclass(frozen=True)
 class CellSpec:
     """One cell of a device: its tags, its coupling interface and its nominal shape.
