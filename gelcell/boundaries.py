@@ -83,7 +83,7 @@ def builtin_cells(params) -> list[CellSpec]:
     n = len(cells)
     out = []
     for k, (x, y, d) in enumerate(cells, start=1):
-        half = params.case == "normal" and abs(y - params.geometry.height) <= 1e-12 * max(1.0, params.geometry.height)
+        half = params.case == "normal" and params.geometry.on_symmetry_line(y)
         out.append(CellSpec(index=k, name="cell" if n == 1 else f"cell_{k}", region_tag=cell_region_tag(k),
                             facet_tag=gamma2_tag(k), interface=gamma2_name(k, n), centre=(x, y), diameter=d,
                             symmetry=(1,) if half else ()))

@@ -188,7 +188,7 @@ def closed_form_measures(params: CaseParameters) -> dict:
     else:
         H, Lg, D = g.height, g.gel_length, g.post_diameter
         Lf = g.upstream_length + g.downstream_length
-        half = [abs(y - H) <= 1e-12 * max(1.0, H) for _, y, _ in cells]
+        half = [g.on_symmetry_line(y) for _, y, _ in cells]
         a_cell = sum((0.5 if h else 1.0) * math.pi * (0.5 * d) ** 2 for h, (_, _, d) in zip(half, cells))
         gamma2 = sum((0.5 if h else 1.0) * math.pi * d for h, (_, _, d) in zip(half, cells))
         cut = sum(d for h, (_, _, d) in zip(half, cells) if h)
@@ -260,7 +260,7 @@ def _build_normal(params: CaseParameters):
     for xc, yc, d in cells:
         r = 0.5 * d
         disk = occ.addDisk(xc, yc, 0, r, r)
-        if abs(yc - H) <= 1e-12 * max(1.0, H):          # cut by the symmetry line: its lower half
+        if g.on_symmetry_line(yc):          # cut by the symmetry line: its lower half
             clip = occ.addRectangle(xc - 2 * r, yc - 2 * r, 0, 4 * r, 2 * r)
             half, _ = occ.intersect([(2, disk)], [(2, clip)])
             tools += list(half)

@@ -121,10 +121,8 @@ def _loops(surface: int, points: dict) -> list:
     while pieces:
         loop = list(pieces.pop(0))
         tol = tol or 1e-7 * max(1.0, float(np.abs(loop).max()))
-        closed = False
         for _ in range(len(pieces) + 1):
             if np.linalg.norm(np.asarray(loop[0]) - loop[-1]) <= tol and len(loop) > 2:
-                closed = True
                 break
             for i, p in enumerate(pieces):
                 if np.linalg.norm(p[0] - loop[-1]) <= tol:
@@ -138,7 +136,6 @@ def _loops(surface: int, points: dict) -> list:
             else:
                 break
         loops.append(np.asarray(loop))
-        del closed
     return loops
 
 
@@ -391,7 +388,6 @@ def _analyse(info: GeometryInfo) -> FileLayout:
         raise ParameterError(f"{where}: it holds volumes (dimension 3); gelcell devices are 2-D")
     bad = [t for t in info.element_types if t not in _ELEMENT_TYPES]
     if bad:
-        import gmsh  # noqa: F401
         raise ParameterError(f"{where}: unsupported element type(s) {bad} (gmsh numbers); gelcell takes "
                              f"triangles of order 1 or 2 (types 2, 9) with lines of order 1 or 2 (1, 8)")
     if info.element_order not in (1, 2):

@@ -382,6 +382,10 @@ class NormalGeometry:
     def min_cell_diameter(self) -> float:
         return min(c[2] for c in self.cell_list())
 
+    def on_symmetry_line(self, y: float) -> bool:
+        """Whether a cell centred at height ``y`` is cut by the symmetry line y = height (half a cell)."""
+        return abs(y - self.height) <= 1e-12 * max(1.0, self.height)
+
     @property
     def post_centres(self) -> tuple[float, float]:
         r = 0.5 * self.post_diameter
@@ -447,7 +451,7 @@ class NormalGeometry:
             H, rp = self.height, 0.5 * self.post_diameter
 
             def clearance(x, y, r):
-                on_line = abs(y - H) <= 1e-12 * max(1.0, H)
+                on_line = self.on_symmetry_line(y)
                 gaps = [(x - r, "Γ1 (x = 0)"), (self.gel_length - x - r, f"Γ3 (x = {_fmt(self.gel_length)})"),
                         (y - r, "the symmetry line y = 0")]
                 if not on_line:

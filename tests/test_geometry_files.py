@@ -113,3 +113,22 @@ def test_cells_of_a_builtin_device_are_checked_before_meshing(capsys, tmp_path):
     err = capsys.readouterr().err
     assert code == 2 and "cells[0]" in err and "Γ1" in err
     assert not out.exists()
+
+
+def test_case_file_names_the_geometry_relative_to_itself(tmp_path):
+    from gelcell.parameters import CaseParameters, ParameterError
+    (tmp_path / "dev").mkdir()
+    (tmp_path / "dev" / "chip.geo").write_text(SMALL)
+    (tmp_path / "case.toml").write_text('[geometry]\nfile = "dev/chip.geo"\n[physics]\nca = 1e-9\n')
+    p = CaseParameters.from_toml(tmp_path / "case.toml")
+    assert p.case == "file" and p.geometry.file == str(tmp_path / "dev" / "chip.geo") and p.physics.ca == 1e-9
+    assert CaseParameters.from_dict(p.to_input_dict()).geometry.file == p.geometry.file     # round trip
+    (tmp_path / "both.toml").write_text('[case]\nname = "shear"\n[geometry]\nfile = "dev/chip.geo"\n')
+    with pytest.raises(ParameterError, match="either the device"):
+        CaseParameters.from_toml(tmp_path / "both.toml")
+    (tmp_path / "cells.toml").write_text('[case]\nname = "shear"\n[geometry]\ncells = [[1.9, -0.2, 0.06], '
+                                        '[2.1, -0.3, 0.05]]\n')
+    q = CaseParameters.from_toml(tmp_path / "cells.toml")
+    assert q.geometry.cell_list() == [(1.9, -0.2, 0.06), (2.1, -0.3, 0.05)]
+    with pytest.raises(ParameterError, match="e"):
+        q.with_e(0.3)
