@@ -833,6 +833,13 @@ class CaseParameters:
         return self.case
 
     @property
+    def label(self) -> str:
+        """How runs and figures name the device: "shear flow", "normal flow" or "device FILE"."""
+        if self.case == "file":
+            return f"device {os.path.basename(self.geometry.file)}"
+        return f"{self.case} flow"
+
+    @property
     def e(self) -> float:
         return self.geometry.e
 

@@ -80,8 +80,7 @@ def plot_profiles(path: str, profiles: dict, params, overlay: dict | None = None
         ax.set_xlabel(f"{along} / L0 along Γ1")
     if overlay is not None:
         axes[0, 0].legend()
-    fig.suptitle(f"{params.case} flow: profiles along Γ1" if params.case != "file" else
-                 f"{os.path.basename(params.geometry.file)}: profiles along Γ1")
+    fig.suptitle(f"{params.label}: profiles along Γ1")
     fig.savefig(path, **_PNG)
     plt.close(fig)
 
@@ -209,7 +208,7 @@ def draw_transient_figures(directory: str, rows: list[dict], summary: dict, para
         ax.plot(seconds, x, "C0-", label="centroid x")
         ax.axhline(x[-1], color="C0", ls=":", lw=0.8, label=f"final x {x[-1]:.4g} µm")
         ax.set_ylabel("centroid displacement x [µm]", color="C0")
-        if params.case == "shear":
+        if np.any(y != 0):
             # the much smaller y motion on its own axis (zero by symmetry in the normal-flow device)
             ay = ax.twinx()
             ay.plot(seconds, y, "C3-", label="centroid y")
@@ -218,13 +217,13 @@ def draw_transient_figures(directory: str, rows: list[dict], summary: dict, para
         for q, style in (("t50", "--"), ("t90", "-."), ("t99", ":")):
             if tr.get(q) is not None:
                 ax.axvline(params.to_si(tr[q], "time"), color="grey", ls=style, lw=0.8, label=q)
-        ax.set_title(f"{params.case} flow: the cell's centroid from rest")
+        ax.set_title(f"{params.label}: the cell's centroid from rest")
     else:
         u = L * np.array([r["max_network_displacement"] for r in rows])
         ax.plot(seconds, u, "C0-", label="max |u_s|")
         ax.axhline(u[-1], color="C0", ls=":", lw=0.8)
         ax.set_ylabel("max |u_s| [µm]")
-        ax.set_title(f"{params.case} flow without a cell: the network from rest")
+        ax.set_title(f"{params.label} without a cell: the network from rest")
     ax.set_xlabel("t [s]")
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right", fontsize=8)

@@ -255,7 +255,7 @@ def run_case(params: CaseParameters, out: str | None, *, monolithic: bool = Fals
     say = (lambda msg: print(msg, file=stream, flush=True)) if comm.rank == 0 else (lambda msg: None)
     if out is not None:
         check_output_target(out, comm)
-    device = (f"device {os.path.basename(params.geometry.file)}" if params.case == "file" else f"{params.case} flow")
+    device = params.label
     n_cells = len(params.geometry.cell_list()) if params.with_cell else 0
     say(f"gelcell: {device}, {'without cell' if not n_cells else 'with cell' if n_cells == 1 else f'{n_cells} cells'}, "
         f"{'monolithic' if monolithic else f'partitioned ({scheme}, {acceleration})'}")

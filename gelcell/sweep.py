@@ -182,7 +182,7 @@ def _plot(path: str, rows: list[dict], param: str, params: CaseParameters) -> No
         ax.grid(alpha=0.3)
     for ax in axes.ravel()[len(names):]:
         ax.axis("off")
-    fig.suptitle(f"{params.case} flow: summary quantities (paper's dimensionless units) against {param}")
+    fig.suptitle(f"{params.label}: summary quantities (paper's dimensionless units) against {param}")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -224,7 +224,7 @@ def _plot_linearity(path: str, rows: list[dict], params: CaseParameters) -> None
         ax.set_title("departure of the small-strain result from the finite-strain one", fontsize=10)
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=8)
-    fig.suptitle(f"{params.case} flow{' with the cell' if params.with_cell else ''}: where linear scaling ends")
+    fig.suptitle(f"{params.label}{' with the cell' if params.with_cell else ''}: where linear scaling ends")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

@@ -614,7 +614,7 @@ def run_transient_case(params: CaseParameters, settings: TimeSettings, out: str 
               "gamma2": gamma2, "coupling": dict(coupling or params.coupling or {})}
     plan = settings.resolved(params)
     scales = plan["scales"]
-    say(f"gelcell: {params.case} flow, {'with' if params.with_cell else 'without'} cell, time-dependent "
+    say(f"gelcell: {params.label}, {'with' if params.with_cell else 'without'} cell, time-dependent "
         f"({settings.scheme}, {'adaptive' if settings.adaptive else 'fixed'} dt), "
         f"{'monolithic' if monolithic else f'partitioned ({scheme}, {acceleration})'}, inflow {settings.inflow}")
     say(f"time scales: consolidation {scales['consolidation']:.3e} ({params.to_si(scales['consolidation'], 'time'):.3e} s), "
