@@ -59,11 +59,13 @@ def _change(a: dict, b: dict, key: str) -> float:
     return float(np.linalg.norm(va - vb) / np.linalg.norm(vb))
 
 
-def test_geometry_file_with_the_builtin_mesh_gives_the_builtin_results(tmp_path):
+def test_geometry_file_with_the_builtin_mesh_gives_the_builtin_results(shared_tmp_path, comm):
     from gelcell.geometryfile import export_builtin
     builtin = _shear()
-    path = str(tmp_path / "shear.msh")
-    export_builtin(builtin, path)
+    path = str(shared_tmp_path / "shear.msh")
+    if comm.rank == 0:
+        export_builtin(builtin, path)
+    comm.Barrier()
     a = solve_partitioned(builtin, verbose=False, checks=False).summary
     p = CaseParameters.from_dict({"geometry": {"file": path}})
     assert p.case == "file" and p.with_cell
