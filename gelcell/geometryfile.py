@@ -567,6 +567,19 @@ def _analyse(info: GeometryInfo) -> FileLayout:
     if not parsed.curves["held"]:
         problems.append("no physical curve 'held': the gel's network is anchored nowhere (name the gel boundaries "
                         "where v_f = 0 and u_s = 0 'held')")
+    else:
+        # every connected part of the gel must be anchored: a held curve, or symmetry lines in both directions
+        held = {c for _, _, ents, _ in parsed.curves["held"] for c in ents}
+        sym_dirs: dict = {}
+        for _, _, ents, _ in parsed.curves["symmetry"]:
+            for c in ents:
+                p = info.curve_points[c]
+                sym_dirs[c] = "h" if abs(p[0, 1] - p[-1, 1]) <= 1e-9 * info.scale else "v"
+        for comp in _components(sorted(gel), info):
+            touching = {c for c, up in info.adjacent.items() if set(up) & comp}
+            if not touching & held and {sym_dirs[c] for c in touching if c in sym_dirs} != {"h", "v"}:
+                problems.append(f"the gel region of surface(s) {sorted(comp)} touches no 'held' curve: its network "
+                                f"is anchored nowhere (rigid-body motion)")
     if not parsed.curves["interface"]:
         problems.append("no physical curve 'interface': the fluid and the gel must share at least one interface")
     # ---- cell boundary groups given by the user must be the cell's boundary

@@ -30,6 +30,14 @@ Point(30) = {2.5, 0, 0, lc}; Point(31) = {3, 0, 0, lc}; Point(32) = {3, 0.3, 0, 
 Line(30) = {30, 31}; Line(31) = {31, 32}; Line(32) = {32, 33}; Line(33) = {33, 30};
 Curve Loop(5) = {30, 31, 32, 33}; Plane Surface(5) = {5};
 """
+ISLAND = """
+Point(40) = {2.5, 0, 0, lc}; Point(41) = {3.5, 0, 0, lc}; Point(42) = {3.5, 0.6, 0, lc}; Point(43) = {2.5, 0.6, 0, lc};
+Line(40) = {40, 41}; Line(41) = {41, 42}; Line(42) = {42, 43}; Line(43) = {43, 40};
+Point(44) = {2.8, 0.2, 0, lc}; Point(45) = {3.2, 0.2, 0, lc}; Point(46) = {3.2, 0.4, 0, lc}; Point(47) = {2.8, 0.4, 0, lc};
+Line(44) = {44, 45}; Line(45) = {45, 46}; Line(46) = {46, 47}; Line(47) = {47, 44};
+Curve Loop(6) = {40, 41, 42, 43}; Curve Loop(7) = {44, 45, 46, 47};
+Plane Surface(6) = {6, 7}; Plane Surface(7) = {7};
+"""
 
 # (id, [(old, new), ...], words the message must contain)
 CASES = [
@@ -62,6 +70,12 @@ CASES = [
      ["surface(s) [5]", "enclosed and nothing fixes its pressure"]),
     ("element order 3", [("//EXTRA", "Mesh.ElementOrder = 3;")], ["Mesh.ElementOrder = 3", "orders 1 and 2"]),
     ("quadrilaterals", [("//EXTRA", "Mesh.RecombineAll = 1;")], ["unsupported element type", "triangles"]),
+    ("gel part held nowhere", [("//EXTRA", ISLAND), ('Physical Surface("gel") = {2};', 'Physical Surface("gel") = {2, 7};'),
+                               ('Physical Surface("fluid") = {1};', 'Physical Surface("fluid") = {1, 6};'),
+                               ('Physical Curve("wall") = {3};', 'Physical Curve("wall") = {3, 40, 41, 42, 43}; '
+                                                                 'Physical Curve("interface_2") = {44, 45, 46, 47};'),
+                               ('Physical Curve("interface")', 'Physical Curve("interface_1")')],
+     ["the gel region of surface(s) [7]", "anchored nowhere"]),
     ("curve in no group", [('Physical Curve("wall") = {3};', "")], ["curve 3", "in no physical group"]),
     ("bad inflow profile", [('"inlet:uniform:0.5"', '"inlet:plug:0.5"')], ["'inlet:plug:0.5'", "'parabolic' or 'uniform'"]),
 ]
