@@ -310,6 +310,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     _check_before_meshing([params], args.out)
     comm = MPI.COMM_WORLD
     overlay, extra = None, {}
+    if args.compare_no_cell and params.case == "file" and params.with_cell:
+        raise ParameterError("--compare-no-cell: the cells of a geometry file are part of its drawing; compare "
+                             "with a copy of the file without them")
     if args.compare_no_cell and params.with_cell:
         if comm.rank == 0:
             print("gelcell: first the same case without the cell, for the profile comparison")
