@@ -712,10 +712,7 @@ def build_file_model(params) -> None:
         gmsh.model.setPhysicalName(2, tag, name)
     for tag, curves in fl.curve_tags.items():
         gmsh.model.addPhysicalGroup(1, curves, tag)
-    if is_mesh:
-        if params.mesh.size_factor != 1.0:
-            raise ParameterError(f"--mesh-size {params.mesh.size_factor:g}: a .msh file carries its own mesh; "
-                                 f"element sizes can be scaled for .geo files only")
+    if is_mesh:       # (a size factor other than 1 is refused by CaseParameters.validate)
         if 9 not in _types(gmsh):
             gmsh.model.mesh.setOrder(2)
     else:

@@ -638,6 +638,9 @@ class CaseParameters:
         problems = (self.physics.problems() + self.dimensional.problems() + self.cell.problems()
                     + self.geometry.problems() + self.mesh.problems())
         _raise(problems)
+        if self.case == "file" and self.geometry.file.lower().endswith(".msh") and self.mesh.size_factor != 1.0:
+            raise ParameterError(f"parameter 'size_factor' = {self.mesh.size_factor:g} (--mesh-size): a .msh file "
+                                 f"carries its own mesh; element sizes can be scaled for .geo files only (allowed: 1)")
         problems = self.geometry.wall_problems(self.element_sizes()["h_layer"])
         if self.with_cell:
             problems += self.geometry.placement_problems(self.element_sizes()["h_cell"])

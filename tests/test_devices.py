@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from mpi_run import run_mpi
-from gelcell.parameters import CaseParameters
+from gelcell.parameters import CaseParameters, ParameterError
 from gelcell.results import flat_quantities
 from gelcell.runner import solve_monolithic, solve_partitioned
 
@@ -69,6 +69,8 @@ def test_geometry_file_with_the_builtin_mesh_gives_the_builtin_results(shared_tm
     a = solve_partitioned(builtin, verbose=False, checks=False).summary
     p = CaseParameters.from_dict({"geometry": {"file": path}})
     assert p.case == "file" and p.with_cell
+    with pytest.raises(ParameterError, match="'size_factor' = 2"):      # a .msh file carries its mesh
+        p.with_mesh_size(2)
     b = solve_partitioned(p, verbose=False, checks=False).summary
     qa, qb = flat_quantities(a), flat_quantities(b)
     assert set(qa) == set(qb)
