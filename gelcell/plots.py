@@ -205,7 +205,13 @@ def draw_transient_figures(directory: str, rows: list[dict], summary: dict, para
     if params.with_cell:
         x = L * np.array([r["centroid_x"] for r in rows])
         y = L * np.array([r["centroid_y"] for r in rows])
-        ax.plot(seconds, x, "C0-", label="centroid x")
+        n_cells = sum(1 for k in rows[-1] if k.startswith("cell_") and k.endswith("_centroid_x"))
+        if n_cells > 1:       # several cells: each one's x, the extremes' curve dashed
+            for k in range(1, n_cells + 1):
+                ax.plot(seconds, L * np.array([r.get(f"cell_{k}_centroid_x", np.nan) for r in rows]), "-",
+                        lw=0.9, label=f"cell_{k} x")
+        ax.plot(seconds, x, "C0-" if n_cells <= 1 else "k--", label="centroid x" if n_cells <= 1 else
+                "x of the cell that moves most")
         ax.axhline(x[-1], color="C0", ls=":", lw=0.8, label=f"final x {x[-1]:.4g} µm")
         ax.set_ylabel("centroid displacement x [µm]", color="C0")
         if np.any(y != 0):
@@ -217,7 +223,8 @@ def draw_transient_figures(directory: str, rows: list[dict], summary: dict, para
         for q, style in (("t50", "--"), ("t90", "-."), ("t99", ":")):
             if tr.get(q) is not None:
                 ax.axvline(params.to_si(tr[q], "time"), color="grey", ls=style, lw=0.8, label=q)
-        ax.set_title(f"{params.label}: the cell's centroid from rest")
+        ax.set_title(f"{params.label}: the cell's centroid from rest" if n_cells <= 1 else
+                     f"{params.label}: the cells' centroids from rest")
     else:
         u = L * np.array([r["max_network_displacement"] for r in rows])
         ax.plot(seconds, u, "C0-", label="max |u_s|")

@@ -377,11 +377,19 @@ class DeviceQuantities:
                 "volume_change_share_of_cell": dA_cell / total if total != 0 else 0.0}
 
     def timeseries_row(self) -> dict[str, float]:
-        """The per-window quantities (``TIMESERIES``), paper units; NaN for cell ones without a cell."""
+        """The per-window quantities (``TIMESERIES``, the cell ones the extremes over the cells; with
+        several cells also ``cell_K_centroid_x/y`` and ``cell_K_strain_max``), paper units; NaN for cell
+        ones without a cell."""
         f = self.fields
         d = f.params.displacement_scale
         row = dict.fromkeys(self.TIMESERIES, math.nan)
-        cell = self.cell_state()
+        states = self.cell_states()
+        cell = combine_cells(states) if states else None
+        if len(states) > 1:
+            # several cells: each cell's centroid and peak strain too (columns cell_K_...)
+            for k, st in enumerate(states, start=1):
+                row[f"cell_{k}_centroid_x"], row[f"cell_{k}_centroid_y"] = st["centroid_displacement"]
+                row[f"cell_{k}_strain_max"] = st["von_mises_strain"][1]
         if cell is not None:
             row.update(centroid_x=cell["centroid_displacement"][0], centroid_y=cell["centroid_displacement"][1],
                        max_cell_displacement=cell["max_displacement"],

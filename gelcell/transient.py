@@ -575,18 +575,20 @@ def _write_timeseries(directory: str, rows: list[dict], params: CaseParameters, 
     import csv
 
     import h5py
-    data = {c: np.array([r[c] for r in rows], dtype=float) for c in COLUMNS}
+    # several cells: each cell's columns after the common ones
+    columns = COLUMNS + tuple(c for c in rows[-1] if c not in COLUMNS and c.startswith("cell_"))
+    data = {c: np.array([r.get(c, np.nan) for r in rows], dtype=float) for c in columns}
     with open(os.path.join(directory, "timeseries.csv"), "w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(COLUMNS)
+        w.writerow(columns)
         for k in range(len(rows)):
-            w.writerow([f"{data[c][k]:.12e}" if c not in ("iterations",) else int(data[c][k]) for c in COLUMNS])
+            w.writerow([f"{data[c][k]:.12e}" if c not in ("iterations",) else int(data[c][k]) for c in columns])
     with h5py.File(os.path.join(directory, "timeseries.h5"), "w") as h5:
         h5.attrs["units"] = ("paper's dimensionless units: t in L0/V0, lengths in L0, velocities in V0, "
                              "stresses in mu_s; strains dimensionless")
         h5.attrs["time_unit_s"] = params.scale("time")
         h5.attrs["case"] = params.case
-        for c in COLUMNS:
+        for c in columns:
             h5.create_dataset(c, data=data[c])
 
 
