@@ -92,8 +92,10 @@ class Preconditioner:
     ``window_complete=False`` in every iteration and ``True`` once when a
     window converges):
 
-    * ``"value"``: ``w_d = 1/‖x_d‖`` when a window completes and in every
-      iteration until all values are nonzero (a zero initial guess);
+    * ``"value"``: ``w_d = 1/‖x_d‖`` in every iteration of the first window
+      (as preCICE: the first iterates of a parallel scheme can be orders of
+      magnitude off the converged values, and weights frozen at them skew
+      the least squares) and then once when each window completes;
     * ``"residual"``: ``w_d = 1/‖r_d‖`` in every iteration;
     * ``"residual-sum"``: ``s_d += ‖r_d‖/‖r‖`` in every iteration, ``w_d = 1/s_d``;
       ``s`` is reset when a window completes;
@@ -141,7 +143,7 @@ class Preconditioner:
                 norms = self.layout.norms(values)
                 ok = norms > 0.0
                 self.data_weights[ok] = 1.0 / norms[ok]
-                self.first_update = not bool(np.all(ok))
+                self.first_update = self.first_update and not window_complete
         elif self.kind == "residual":
             if not window_complete:
                 norms = self.layout.norms(residual)

@@ -209,7 +209,7 @@ class PreconditionerConfig:
     * ``"constant"``: ``w_d = 1 / factors[d]`` (``factors`` must name every
       accelerated data);
     * ``"value"``: ``w_d = 1 / ‖x_d‖`` from the values at the end of the
-      previous window (within the first window: as soon as they are nonzero);
+      previous window (within the first window: of the current iterate);
     * ``"residual"``: ``w_d = 1 / ‖r_d‖`` of the current iteration;
     * ``"residual-sum"``: ``w_d = 1 / Σ_k ‖r_d^k‖ / ‖r^k‖`` summed over the
       iterations of the current window.

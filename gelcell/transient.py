@@ -592,6 +592,11 @@ def _write_timeseries(directory: str, rows: list[dict], params: CaseParameters, 
             h5.create_dataset(c, data=data[c])
 
 
+def _fmt(value) -> str:
+    """A time for the progress line: 4 digits, or 'n/a' when undefined (e.g. no motion)."""
+    return "n/a" if value is None or not np.isfinite(value) else f"{value:.4e}"
+
+
 def run_transient_case(params: CaseParameters, settings: TimeSettings, out: str | None, *,
                        monolithic: bool = False, scheme: str = "serial", acceleration: str = "iqn-ils",
                        coupling: typing.Mapping | None = None, comm: MPI.Comm = MPI.COMM_WORLD,
@@ -662,7 +667,8 @@ def run_transient_case(params: CaseParameters, settings: TimeSettings, out: str 
         say(format_summary(summary))
         say(f"time-dependent: {t['windows']} windows to t = {t['t_end']:.4e} ({t['t_end_s']:.3e} s), "
             f"{t['iterations_total']} iterations (mean {t['iterations_mean']:.2f}), "
-            f"t50/t90/t99 = {t['t50']}/{t['t90']}/{t['t99']}, relaxation time {t['relaxation_time']}")
+            f"t50/t90/t99 = {_fmt(t['t50'])}/{_fmt(t['t90'])}/{_fmt(t['t99'])}, "
+            f"relaxation time {_fmt(t['relaxation_time'])} (paper units)")
         if work_dir is None:
             return summary
         written = ["summary.json", "timeseries.csv", "timeseries.h5"]

@@ -158,8 +158,12 @@ def test_preconditioner_weights():
     value = cp.Preconditioner(cp.PreconditionerConfig(type="value"), layout)
     value.update(False, x, r)
     np.testing.assert_allclose(value.data_weights, [1 / 5, 1 / 2])
-    value.update(False, 2 * x, r)  # only at window completion after the first call
-    np.testing.assert_allclose(value.data_weights, [1 / 5, 1 / 2])
+    value.update(False, 2 * x, r)  # in every iteration of the first window (as preCICE)
+    np.testing.assert_allclose(value.data_weights, [1 / 10, 1 / 4])
+    value.update(True, 4 * x, r)   # the first window completes
+    np.testing.assert_allclose(value.data_weights, [1 / 20, 1 / 8])
+    value.update(False, x, r)      # later windows: only at their completion
+    np.testing.assert_allclose(value.data_weights, [1 / 20, 1 / 8])
     rsum = cp.Preconditioner(cp.PreconditionerConfig(type="residual-sum", freeze_after=1), layout)
     rsum.update(False, x, r)
     rsum.update(False, x, r)
