@@ -35,15 +35,16 @@ gelcell: finite-element model of a microfluidic device in which a perfusate
 Three field solvers (fluid, gel, cell) are coupled on the interfaces
 Gamma1 (fluid-gel), Gamma2 (gel-cell) and Gamma3 (second fluid-gel) for two
 device geometries: "shear" (gel chamber below a channel) and "normal"
-(flow through a gel layer between posts).  Results are reported in the
+(flow through a gel layer between posts), or for your own device drawn in gmsh
+(--geometry FILE.geo|FILE.msh, docs/geometry-files.md), with one or several cells.  Results are reported in the
 paper's dimensionless units and in SI units (µm, µm/s, mPa).
 
 Runs in serial or under mpirun (e.g. mpirun -n 2 gelcell mesh normal --out m).
 """
 
 EPILOG = """\
-Case options (--e, --ca, --cell-moduli, --gel-moduli, --mesh-size, --cell/--no-cell,
---kinematics)
+Case options (--geometry, --cells, --e, --ca, --cell-moduli, --gel-moduli, --mesh-size,
+--cell/--no-cell, --kinematics)
 override the values of a --config TOML file, which override the defaults of
 model.md (see examples/case_baseline_shear.toml).  Run "gelcell COMMAND --help"
 for the options of a command.
