@@ -37,7 +37,8 @@ Gamma1 (fluid-gel), Gamma2 (gel-cell) and Gamma3 (second fluid-gel) for two
 device geometries: "shear" (gel chamber below a channel) and "normal"
 (flow through a gel layer between posts), or for your own device drawn in gmsh
 (--geometry FILE.geo|FILE.msh, docs/geometry-files.md), with one or several
-cells.  Results are reported in the paper's dimensionless units and in SI units (µm, µm/s, mPa).
+cells.  Results are reported in the paper's dimensionless units and in SI
+units (µm, µm/s, mPa).
 
 Runs in serial or under mpirun (e.g. mpirun -n 2 gelcell mesh normal --out m).
 """
