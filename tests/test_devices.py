@@ -10,7 +10,8 @@
   neighbour at centre distance s changes a cell's response by O(d / (2 s)) (0.0375 for the far
   pair); the close pair must differ by more than that bound and by more than three times the far
   pair's measured change.
-* The partitioned result of the close pair equals the monolithic reference to 1e-6.
+* The partitioned result of the close pair equals the monolithic reference to 1e-6, and so does a
+  half cell on the normal-flow device's symmetry line next to a whole cell.
 * 1 and 2 ranks agree on a device from a geometry file with two cells (tests/mpi_scripts).
 """
 
@@ -153,3 +154,17 @@ def test_user_device_same_on_one_and_two_ranks():
     assert "cell_2.centroid_displacement[0]" in serial
     for key, value in serial.items():
         assert parallel[key] == pytest.approx(value, rel=1e-8, abs=1e-14 * abs(value) + 1e-300), key
+
+
+def test_half_and_whole_cells_in_the_normal_device():
+    """A cell on the symmetry line (half of it meshed) next to a whole one: partitioned = monolithic to
+    1e-6; the half cell's centroid moves along the line, the whole one's need not."""
+    p = CaseParameters.default("normal").with_mesh_size(SIZE)
+    p = p.replace(geometry=p.geometry.__class__(cells=((1.2, 0.5, 0.06), (0.9, 0.25, 0.06))))
+    part = solve_partitioned(p, verbose=False, checks=False).summary
+    mono = solve_monolithic(p, checks=False).summary
+    half, whole = part["cells"]
+    assert half["centroid_displacement"][1] == 0.0 and whole["centroid_displacement"][1] != 0.0
+    for a, b in zip(part["cells"], mono["cells"]):
+        for key in CELL_KEYS + ("von_mises_stress",):
+            assert _change(a, b, key) <= 1e-6, (a["name"], key)
