@@ -358,10 +358,6 @@ def _distance(points: np.ndarray, polyline: np.ndarray) -> float:
     return float(np.linalg.norm(points[:, None, :] - proj, axis=2).min())
 
 
-def _on_loops(point, loops, tol) -> bool:
-    return any(_distance(point[None, :], np.vstack([lp, lp[:1]])) <= tol for lp in loops)
-
-
 def _where(points: np.ndarray) -> str:
     m = points[len(points) // 2]
     return f"near ({m[0]:.4g}, {m[1]:.4g})"
