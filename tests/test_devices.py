@@ -80,6 +80,7 @@ def test_geometry_file_with_the_builtin_mesh_gives_the_builtin_results(shared_tm
     assert b["cells"][0]["centre"] == pytest.approx([2.0, -0.2], abs=1e-12)
 
 
+@pytest.mark.skip_in_parallel   # physics, not partitioning: 1 vs 2 ranks is tested below
 def test_geo_file_of_the_builtin_device_is_within_discretisation_error():
     """examples/devices/shear.geo (the built-in shear device drawn in a .geo file, meshed by its own
     sizes) against the built-in device at the same size factor.
@@ -99,6 +100,7 @@ def test_geo_file_of_the_builtin_device_is_within_discretisation_error():
         assert abs(g3[key] - ref) <= 8 * abs(ref - b15[key]), (key, g3[key], ref, b15[key])
 
 
+@pytest.mark.skip_in_parallel   # physics, not partitioning: 1 vs 2 ranks is tested below
 def test_far_apart_cells_behave_like_single_cells(runs):
     pair = runs("far", FAR)["cells"]
     separation = np.hypot(FAR[1][0] - FAR[0][0], FAR[1][1] - FAR[0][1])
@@ -110,6 +112,7 @@ def test_far_apart_cells_behave_like_single_cells(runs):
             assert _change(pair[k], alone, key) <= bound, (k, key, _change(pair[k], alone, key), bound)
 
 
+@pytest.mark.skip_in_parallel   # physics, not partitioning: 1 vs 2 ranks is tested below
 def test_close_cells_differ_from_single_cells(runs):
     far = runs("far", FAR)["cells"]
     far_bound = FAR[0][2] / (2 * np.hypot(FAR[1][0] - FAR[0][0], FAR[1][1] - FAR[0][1]))
