@@ -21,7 +21,7 @@ import coupling as cp
 from femtools.io import atomic_directory, check_output_target
 from gelcell.boundaries import device_boundaries
 from gelcell.checks import format_residuals, interface_residuals
-from gelcell.device import Device, coupling_config, default_robin_coefficient
+from gelcell.device import Device, coupling_config, default_robin_coefficient, reuse_key
 from gelcell.geometry import build_device
 from gelcell.monolithic import MonolithicCoefficients, MonolithicSolver
 from gelcell.output import DerivedFields, write_fields, write_json_file, write_profiles
@@ -30,7 +30,52 @@ from gelcell.results import DeviceFields, fields_from_device, fields_from_monoli
 from gelcell.validity import check_case, model_warnings
 
 __all__ = ["run_case", "solve_partitioned", "solve_monolithic", "format_summary", "CaseRun",
-           "partitioned_config"]
+           "partitioned_config", "ReuseStore"]
+
+
+class ReuseStore:
+    """The coupling state carried from one solve to the next of a sweep (see :func:`solve_partitioned`).
+
+    Attributes:
+        key: What identifies the scaled problem (and the coupling configuration) of the states.
+        states: ``[(Ca, scheme.reuse_state()), ...]`` of the last three solves with that key.
+    """
+
+    def __init__(self) -> None:
+        self.key: typing.Any = None
+        self.states: list[tuple[float, dict]] = []
+
+    @property
+    def state(self) -> dict | None:
+        """The newest reusable state (None if none)."""
+        return self.states[-1][1] if self.states else None
+
+    def add(self, key: typing.Any, ca: float, state: dict) -> None:
+        if key != self.key:
+            self.key, self.states = key, []
+        self.states = [(c, st) for c, st in self.states if c != float(ca)]
+        self.states = (self.states + [(float(ca), state)])[-3:]
+
+    def prediction(self, ca: float) -> dict | None:
+        """The interface data at ``ca`` extrapolated in Ca from the last states (solver units).
+
+        Lagrange polynomial through the last two (linear) or three
+        (quadratic) solves; None with fewer than two.  In solver units the
+        data depend on Ca only through the strain-sized nonlinearity, smooth
+        in Ca: the extrapolation removes its first- (second-) order part.
+        """
+        if len(self.states) < 2:
+            return None
+        cs = [c for c, _ in self.states]
+        weights = []
+        for i, ci in enumerate(cs):
+            w = 1.0
+            for j, cj in enumerate(cs):
+                if j != i:
+                    w *= (float(ca) - cj) / (ci - cj)
+            weights.append(w)
+        names = self.states[-1][1]["values"]
+        return {n: sum(w * st["values"][n] for w, (_, st) in zip(weights, self.states)) for n in names}
 
 
 class CaseRun(typing.NamedTuple):
@@ -64,7 +109,8 @@ def partitioned_config(params: CaseParameters, scheme: str = "serial", accelerat
     Raises :class:`ParameterError` naming the bad key or value, before anything is meshed.
     """
     config = coupling_config(scheme, acceleration, with_cell=params.with_cell,
-                             overrides=dict(coupling or params.coupling or {}), transient=transient)
+                             overrides=dict(coupling or params.coupling or {}), transient=transient,
+                             params=params)
     try:
         cp.load_config(config)
     except ValueError as exc:
@@ -75,14 +121,37 @@ def partitioned_config(params: CaseParameters, scheme: str = "serial", accelerat
 def solve_partitioned(params: CaseParameters, scheme: str = "serial", acceleration: str = "iqn-ils",
                       coupling: typing.Mapping | None = None, comm: MPI.Comm = MPI.COMM_WORLD,
                       verbose: bool = True, robin_coefficient: float | None = None,
-                      checks: bool = True, gamma2: str = "dirichlet") -> CaseRun:
-    """Solve a case with the partitioned scheme; summary with coupling, timing and checks."""
+                      checks: bool = True, gamma2: str = "dirichlet",
+                      reuse: "ReuseStore | None" = None) -> CaseRun:
+    """Solve a case with the partitioned scheme; summary with coupling, timing and checks.
+
+    ``reuse``: a :class:`ReuseStore` carried across related solves (a sweep).
+    If it holds the state of a solve with the same :func:`gelcell.device.reuse_key`
+    (the same scaled problem, e.g. another Ca) and the same coupling
+    configuration, that state starts this solve; afterwards the store holds
+    this solve's state.
+    """
     t0 = time.perf_counter()
     check_case(params)
     config = partitioned_config(params, scheme, acceleration, coupling)
     device = Device(params, comm, robin_coefficient=robin_coefficient, gamma2=gamma2)
     t1 = time.perf_counter()
-    result = device.solve(config, verbose=verbose)
+    key = None
+    if reuse is not None:
+        key = (reuse_key(params), repr(sorted(config.items())), robin_coefficient, gamma2)
+    reused = reuse is not None and reuse.key == key and reuse.state is not None
+    try:
+        result = device.solve(config, verbose=verbose, reuse=reuse.state if reused else None,
+                              initial=reuse.prediction(params.physics.ca) if reused else None)
+    except cp.CouplingError:
+        if not reused:
+            raise
+        # the reused information did not fit after all: solve this value from scratch
+        reused = False
+        device = Device(params, comm, robin_coefficient=robin_coefficient, gamma2=gamma2)
+        result = device.solve(config, verbose=verbose)
+    if reuse is not None:
+        reuse.add(key, params.physics.ca, device.scheme.reuse_state())
     t_solve = time.perf_counter() - t1
     fields = fields_from_device(device)
     summary = summarize(fields)
@@ -92,7 +161,7 @@ def solve_partitioned(params: CaseParameters, scheme: str = "serial", accelerati
         "robin_coefficient": device.alpha_n, "gamma2": device.gamma2,
         "gamma2_coefficient": device.kappa if device.gamma2 == "robin" else None,
         "iterations": result.iterations, "converged": result.converged,
-        "reason": result.reason, "residual_history": result.residual_history,
+        "reason": result.reason, "reused": reused, "residual_history": result.residual_history,
         "relaxation": result.relaxation}
     summary["mesh"] = {
         "fluid": {"cells": _cells(device.fluid.velocity), "dofs": _dofs(device.fluid.W)},
@@ -234,7 +303,8 @@ def run_case(params: CaseParameters, out: str | None, *, monolithic: bool = Fals
              acceleration: str = "iqn-ils", coupling: typing.Mapping | None = None,
              comm: MPI.Comm = MPI.COMM_WORLD, verbose: bool = True, figures: bool = True,
              fields: bool = True, overlay_profiles: dict | None = None, stream=None,
-             extra_json: dict | None = None, gamma2: str = "dirichlet", shown_path: str | None = None) -> dict:
+             extra_json: dict | None = None, gamma2: str = "dirichlet", shown_path: str | None = None,
+             reuse: ReuseStore | None = None) -> dict:
     """Solve one case and write its outputs into ``out`` (whole or not at all).
 
     ``out`` and the model's limits are checked before anything is meshed; the
@@ -251,7 +321,7 @@ def run_case(params: CaseParameters, out: str | None, *, monolithic: bool = Fals
     if monolithic:
         run = solve_monolithic(params, comm)
     else:
-        run = solve_partitioned(params, scheme, acceleration, coupling, comm, verbose, gamma2=gamma2)
+        run = solve_partitioned(params, scheme, acceleration, coupling, comm, verbose, gamma2=gamma2, reuse=reuse)
     summary = report(run.summary, params)
     say(format_summary(summary))
     if "interface_residuals" in summary:
