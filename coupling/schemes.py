@@ -654,28 +654,44 @@ class CouplingScheme:
                 raise KeyError(f"set_values: unknown data {name!r}; data: {list(self.data)}")
             self.values[name] = self._as_data_array(name, value, "set_values")
 
-    def reuse_state(self) -> dict[str, Any]:
+    def reuse_state(self, participants: bool = False) -> dict[str, Any]:
         """What a later solve with the same interface operator can reuse (a copy).
 
         The converged value of every data (the next initial guess) and the
         acceleration's complete state: the kept secant columns (IQN-ILS keeps
         those of the last ``time_windows_reused`` solves or windows), the
-        preconditioner weights, the IMVJ Jacobian.  Load it into another
-        scheme of the same data with :meth:`load_reuse_state`.
+        preconditioner weights, the IMVJ Jacobian.  With ``participants``,
+        also every participant's ``save_state()`` (``None`` for one that does
+        not implement it): a participant that continues from its previous
+        state (e.g. a Newton solver's initial guess) starts from the old
+        solution.  Load it into another scheme of the same data with
+        :meth:`load_reuse_state`.
         """
+        states: dict[str, Any] = {}
+        if participants:
+            for name in self.order:
+                try:
+                    states[name] = self.participants[name].save_state()
+                except NotImplementedError:
+                    states[name] = None
         return {"data": list(self.data), "accelerated": list(self.accelerated),
                 "shapes": {n: list(v.shape) for n, v in self.values.items()},
                 "values": {n: v.copy() for n, v in self.values.items()},
-                "acceleration": copy.deepcopy(self.acceleration.state_dict())}
+                "acceleration": copy.deepcopy(self.acceleration.state_dict()),
+                "participants": states}
 
     def load_reuse_state(self, state: Mapping[str, Any], *, values: bool = True,
-                         acceleration: bool = True, scale: Mapping[str, float] | None = None) -> None:
+                         acceleration: bool = True, participants: bool = True,
+                         scale: Mapping[str, float] | None = None) -> None:
         """Start from a :meth:`reuse_state` of a related problem (same data, same interface operator).
 
         Args:
             state: The exported state.
             values: Take its data values as the initial guess.
             acceleration: Take its quasi-Newton information (columns, weights).
+            participants: Load the participant states it holds (``load_state``),
+                if any; they must fit this scheme's participants (same
+                discretisation).  Not rescaled.
             scale: ``{data: factor}``: the data are ``factor`` times the old
                 ones in this problem's units (e.g. after a change of the unit
                 of stress); values, secant columns and weights are rescaled
@@ -703,6 +719,12 @@ class CouplingScheme:
             acc = copy.deepcopy(state["acceleration"])
             _scale_acceleration_state(acc, self.layout, factors)
             self.acceleration.load_state_dict(acc)
+        if participants:
+            for name, pstate in (state.get("participants") or {}).items():
+                if name not in self.participants:
+                    raise ValueError(f"load_reuse_state: state of unknown participant {name!r}")
+                if pstate is not None:
+                    self._call(name, "load_state", pstate)
 
     # ------------------------------------------------------------------ records
     def write_records(self, directory: str | os.PathLike) -> dict[str, str]:

@@ -544,6 +544,19 @@ class Device:
         self.scheme: cp.CouplingScheme | None = None
         self.result: cp.CouplingResult | None = None
 
+    def _fits(self, states: typing.Mapping | None) -> bool:
+        """Whether participant states (``save_state()`` per name) have this device's array shapes."""
+        if not states:
+            return False
+
+        def shapes(obj):
+            if isinstance(obj, dict):
+                return {k: shapes(v) for k, v in obj.items()}
+            return np.shape(obj)
+        mine = {p.name: p.save_state() for p in self.participants}
+        return all(name in mine and shapes(st) == shapes(mine[name]) for name, st in states.items()
+                   if st is not None)
+
     def solve(self, config: typing.Mapping | None = None, verbose: bool = True,
               record_data: bool = False, reuse: typing.Mapping | None = None,
               initial: typing.Mapping | None = None) -> cp.CouplingResult:
@@ -553,7 +566,9 @@ class Device:
         problem (equal :func:`reuse_key`, e.g. the previous value of a Ca
         sweep): its converged interface data are the initial guess and its
         quasi-Newton columns the initial model.  In solver units the data of
-        such problems are the same, so no rescaling is needed.  ``initial``:
+        such problems are the same, so no rescaling is needed.  Participant
+        states in it (the field solutions: the linear path's starting point)
+        are loaded if they have this device's array shapes.  ``initial``:
         interface data (solver units) that replace the initial guess, e.g. a
         prediction extrapolated from earlier solves.
         """
@@ -562,7 +577,7 @@ class Device:
         config.setdefault("record_data", record_data)
         self.scheme = cp.build_scheme(config, self.participants, self.data, comm=self.comm)
         if reuse is not None:
-            self.scheme.load_reuse_state(reuse)
+            self.scheme.load_reuse_state(reuse, participants=self._fits(reuse.get("participants")))
         if initial is not None:
             self.scheme.set_values(initial)
         self.result = self.scheme.solve()

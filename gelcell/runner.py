@@ -56,16 +56,7 @@ class ReuseStore:
         self.states = [(c, st) for c, st in self.states if c != float(ca)]
         self.states = (self.states + [(float(ca), state)])[-3:]
 
-    def prediction(self, ca: float) -> dict | None:
-        """The interface data at ``ca`` extrapolated in Ca from the last states (solver units).
-
-        Lagrange polynomial through the last two (linear) or three
-        (quadratic) solves; None with fewer than two.  In solver units the
-        data depend on Ca only through the strain-sized nonlinearity, smooth
-        in Ca: the extrapolation removes its first- (second-) order part.
-        """
-        if len(self.states) < 2:
-            return None
+    def _weights(self, ca: float) -> list[float]:
         cs = [c for c, _ in self.states]
         weights = []
         for i, ci in enumerate(cs):
@@ -74,8 +65,38 @@ class ReuseStore:
                 if j != i:
                     w *= (float(ca) - cj) / (ci - cj)
             weights.append(w)
-        names = self.states[-1][1]["values"]
-        return {n: sum(w * st["values"][n] for w, (_, st) in zip(weights, self.states)) for n in names}
+        return weights
+
+    def prediction(self, ca: float) -> dict | None:
+        """The newest state with its interface data and participant states extrapolated to ``ca``.
+
+        Lagrange polynomial in Ca through the last two (linear) or three
+        (quadratic) solves; the newest state as it is with only one.  In
+        solver units the data and fields depend on Ca only through the
+        strain-sized nonlinearity, smooth in Ca: the extrapolation removes
+        its first- (second-) order part.  None without a state.
+        """
+        if not self.states:
+            return None
+        newest = self.states[-1][1]
+        if len(self.states) < 2:
+            return newest
+        weights = self._weights(ca)
+
+        def combine(parts):
+            first = parts[0]
+            if isinstance(first, dict):
+                return {k: combine([p[k] for p in parts]) for k in first}
+            if isinstance(first, np.ndarray) and first.dtype.kind == "f" and \
+                    all(isinstance(p, np.ndarray) and p.shape == first.shape for p in parts):
+                return sum(w * p for w, p in zip(weights, parts))
+            return parts[-1]
+
+        states = [st for _, st in self.states]
+        out = dict(newest)
+        out["values"] = combine([st["values"] for st in states])
+        out["participants"] = combine([st.get("participants") or {} for st in states])
+        return out
 
 
 class CaseRun(typing.NamedTuple):
@@ -141,8 +162,7 @@ def solve_partitioned(params: CaseParameters, scheme: str = "serial", accelerati
         key = (reuse_key(params), repr(sorted(config.items())), robin_coefficient, gamma2)
     reused = reuse is not None and reuse.key == key and reuse.state is not None
     try:
-        result = device.solve(config, verbose=verbose, reuse=reuse.state if reused else None,
-                              initial=reuse.prediction(params.physics.ca) if reused else None)
+        result = device.solve(config, verbose=verbose, reuse=reuse.prediction(params.physics.ca) if reused else None)
     except cp.CouplingError:
         if not reused:
             raise
@@ -151,7 +171,7 @@ def solve_partitioned(params: CaseParameters, scheme: str = "serial", accelerati
         device = Device(params, comm, robin_coefficient=robin_coefficient, gamma2=gamma2)
         result = device.solve(config, verbose=verbose)
     if reuse is not None:
-        reuse.add(key, params.physics.ca, device.scheme.reuse_state())
+        reuse.add(key, params.physics.ca, device.scheme.reuse_state(participants=True))
     t_solve = time.perf_counter() - t1
     fields = fields_from_device(device)
     summary = summarize(fields)
