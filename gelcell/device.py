@@ -546,16 +546,14 @@ class Device:
 
     def _fits(self, states: typing.Mapping | None) -> bool:
         """Whether participant states (``save_state()`` per name) have this device's array shapes."""
-        if not states:
-            return False
-
         def shapes(obj):
             if isinstance(obj, dict):
                 return {k: shapes(v) for k, v in obj.items()}
             return np.shape(obj)
         mine = {p.name: p.save_state() for p in self.participants}
-        return all(name in mine and shapes(st) == shapes(mine[name]) for name, st in states.items()
-                   if st is not None)
+        ok = bool(states) and all(name in mine and shapes(st) == shapes(mine[name])
+                                  for name, st in states.items() if st is not None)
+        return bool(self.comm.allreduce(ok, op=MPI.LAND))      # the same decision on every rank
 
     def solve(self, config: typing.Mapping | None = None, verbose: bool = True,
               record_data: bool = False, reuse: typing.Mapping | None = None,

@@ -5,6 +5,14 @@ discard the others: the sweep writes every completed run, lists the failed
 values with their error in sweep.csv/sweep.json, and then raises
 :class:`gelcell.errors.SweepError`.
 
+Reuse (``--param ca``).  In the solver's units (stress Ca mu_s, displacement
+Ca L0) every value of a Ca sweep is the same coupled problem up to the
+strain-sized nonlinearity (gelcell.device.reuse_key).  Each value after the
+first therefore starts from the previous values' interface data and field
+states extrapolated in Ca, with their quasi-Newton columns
+(gelcell.runner.ReuseStore); sweep.csv records ``iterations`` and ``reused``.
+Other sweeps change the interface operator and start from rest.
+
 Beyond linearity (``--param ca``).  At fixed moduli Ca sets the flow speed;
 the flow is Ca-independent in the paper's units and every displacement,
 strain and stress is proportional to Ca as long as the response is linear.
