@@ -206,12 +206,13 @@ def coupling_data(boundaries: DeviceBoundaries, gamma2: str = "dirichlet", kinem
 def coupling_config(scheme: str = "serial", acceleration: str = "iqn-ils", *, limit: float = 1e-10,
                     max_iterations: int = 200, with_cell: bool = True,
                     overrides: typing.Mapping | None = None, transient: bool = False,
-                    params: CaseParameters | None = None) -> dict:
+                    params: CaseParameters | None = None, gamma2: str = "dirichlet") -> dict:
     """A ``[coupling]`` table for a device run (TOML overrides are merged on top).
 
     Convergence: every exchanged data to a relative residual ``limit``.
-    Steady runs with IQN and the case's ``params``: the Gamma2 relaxation
-    prior (:func:`default_relaxation_prior`), and the secant columns of the
+    Steady serial runs with IQN, the case's ``params`` and the default
+    Dirichlet-Neumann ``gamma2``: the Gamma2 relaxation prior
+    (:func:`default_relaxation_prior`; it is derived for that split), and the secant columns of the
     last 4 solves are kept (``time_windows_reused``; no effect on one solve,
     reused by a Ca sweep, see ``Device.solve(reuse=...)``).
     Time-dependent runs (``transient``): each window starts from the linear
@@ -244,7 +245,8 @@ def coupling_config(scheme: str = "serial", acceleration: str = "iqn-ils", *, li
         else:
             if acceleration == "iqn-ils":
                 acc["time_windows_reused"] = 4
-            prior = default_relaxation_prior(params) if params is not None and scheme == "serial" else {}
+            prior = (default_relaxation_prior(params)
+                     if params is not None and scheme == "serial" and gamma2 == "dirichlet" else {})
             if prior:
                 acc["relaxation_prior"] = prior
     config = {"scheme": f"{scheme}-implicit" if scheme in ("serial", "parallel") else scheme,

@@ -124,14 +124,15 @@ def monolithic_coefficients(params: CaseParameters) -> MonolithicCoefficients:
 
 
 def partitioned_config(params: CaseParameters, scheme: str = "serial", acceleration: str = "iqn-ils",
-                       coupling: typing.Mapping | None = None, transient: bool = False) -> dict:
+                       coupling: typing.Mapping | None = None, transient: bool = False,
+                       gamma2: str = "dirichlet") -> dict:
     """The ``[coupling]`` table of a partitioned run (defaults < the case's < ``coupling``), validated.
 
     Raises :class:`ParameterError` naming the bad key or value, before anything is meshed.
     """
     config = coupling_config(scheme, acceleration, with_cell=params.with_cell,
                              overrides=dict(coupling or params.coupling or {}), transient=transient,
-                             params=params)
+                             params=params, gamma2=gamma2)
     try:
         cp.load_config(config)
     except ValueError as exc:
@@ -154,7 +155,7 @@ def solve_partitioned(params: CaseParameters, scheme: str = "serial", accelerati
     """
     t0 = time.perf_counter()
     check_case(params)
-    config = partitioned_config(params, scheme, acceleration, coupling)
+    config = partitioned_config(params, scheme, acceleration, coupling, gamma2=gamma2)
     device = Device(params, comm, robin_coefficient=robin_coefficient, gamma2=gamma2)
     t1 = time.perf_counter()
     key = None

@@ -72,7 +72,7 @@ class Method:
         """The ``[coupling]`` table: the device default of the case (with ``params``: its Gamma2
         relaxation prior, gelcell.device.default_relaxation_prior), then this method's options."""
         base = coupling_config(self.scheme, self.acceleration["type"], with_cell=with_cell,
-                               max_iterations=max_iterations, params=params)
+                               max_iterations=max_iterations, params=params, gamma2=self.gamma2)
         acc = dict(base["acceleration"])
         acc.update({k: v for k, v in self.acceleration.items()})
         base["acceleration"] = {k: v for k, v in acc.items()
