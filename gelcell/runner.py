@@ -71,7 +71,8 @@ class ReuseStore:
         """The newest state with its interface data and participant states extrapolated to ``ca``.
 
         Lagrange polynomial in Ca through the last two (linear) or three
-        (quadratic) solves; the newest state as it is with only one.  In
+        (quadratic) solves; the newest state as it is with only one (or far
+        outside the known values).  In
         solver units the data and fields depend on Ca only through the
         strain-sized nonlinearity, smooth in Ca: the extrapolation removes
         its first- (second-) order part.  None without a state.
@@ -79,9 +80,18 @@ class ReuseStore:
         if not self.states:
             return None
         newest = self.states[-1][1]
-        if len(self.states) < 2:
+        # far outside the known values a polynomial amplifies the states' 1e-10 convergence noise:
+        # fall back to fewer points (linear beyond 2x their span, none beyond 10x)
+        cs = [c for c, _ in self.states]
+        reach = abs(float(ca) - cs[-1]) / max(max(cs) - min(cs), 1e-300)
+        used = self.states if reach <= 2.0 else self.states[-2:] if reach <= 10.0 else self.states[-1:]
+        if len(used) < 2:
             return newest
-        weights = self._weights(ca)
+        saved, self.states = self.states, used
+        try:
+            weights = self._weights(ca)
+        finally:
+            self.states = saved
 
         def combine(parts):
             first = parts[0]
@@ -92,7 +102,7 @@ class ReuseStore:
                 return sum(w * p for w, p in zip(weights, parts))
             return parts[-1]
 
-        states = [st for _, st in self.states]
+        states = [st for _, st in used]
         out = dict(newest)
         out["values"] = combine([st["values"] for st in states])
         out["participants"] = combine([st.get("participants") or {} for st in states])

@@ -76,3 +76,18 @@ def test_ca_sweep_reuses_quasi_newton_information(case):
     # another scaled problem (other cell moduli) does not reuse
     other = solve_partitioned(base.with_cell_moduli(2.0), verbose=False, checks=False, reuse=store)
     assert other.summary["coupling"]["reused"] is False
+
+
+def test_reuse_store_extrapolates_in_ca():
+    """Lagrange extrapolation of values and participant states; fewer points far outside the known values."""
+    import numpy as np
+    store = ReuseStore()
+    assert store.prediction(1.0) is None
+    for c in (1.0, 2.0, 3.0):
+        store.add("key", c, {"values": {"a": np.array([c * c])}, "participants": {"p": {"u": np.array([2 * c])}}})
+    assert store.prediction(4.0)["values"]["a"][0] == pytest.approx(16.0)          # quadratic: exact
+    assert store.prediction(4.0)["participants"]["p"]["u"][0] == pytest.approx(8.0)
+    assert store.prediction(12.0)["values"]["a"][0] == pytest.approx(9.0 + 9.0 * 5.0)   # linear from 2 and 3
+    assert store.prediction(50.0)["values"]["a"][0] == pytest.approx(9.0)         # newest only
+    store.add("other", 1.0, {"values": {"a": np.array([5.0])}})
+    assert store.key == "other" and len(store.states) == 1
