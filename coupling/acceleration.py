@@ -35,6 +35,20 @@ In the first iteration of the first window (or of every window with
 ``enforce_initial_relaxation``), and whenever no usable column is left, the
 quasi-Newton methods relax: ``x_{k+1} = x_k + ω_0 r_k``.
 
+**Prior inverse Jacobian** (generalised Broyden).  IQN-ILS implicitly takes
+``J0 = 0`` outside the span of its columns: there it does a plain
+fixed-point step ``x̃``.  With a prior ``J0`` (``relaxation_prior``:
+``J0 = diag(1 - ω_d)``, one relaxation factor per data; or a *surrogate*
+object whose ``inverse_jacobian(r)`` returns ``J0 r``, e.g. the same
+coupled problem on a coarser mesh) the update is
+
+.. math::  x_{k+1} = x̃_k - J_0 r_k + (W - J_0 V) α ,\qquad α = \arg\min_α ‖P (V α + r_k)‖_2 ,
+
+i.e. the multi-vector update of ``J0`` by the secant pairs; without columns
+it is the prior's step ``x̃_k - J0 r_k`` (for the relaxation prior:
+``x_k + ω_d r_k`` per data).  IQN-IMVJ uses the prior as its first
+``J_prev``.
+
 Zero or near-zero difference columns (``‖P Δr‖ ≤ 100 ε max(‖P x̃_k‖,
 ‖P x̃_{k-1}‖)``) carry no information and are skipped, never used.
 
@@ -415,8 +429,33 @@ class AitkenRelaxation(Acceleration):
         self.previous_residual = None if prev is None else np.array(prev, dtype=float)
 
 
+def relaxation_prior_diagonal(table: dict[str, float], layout: VectorLayout) -> np.ndarray | None:
+    """``1 - ω`` per entry of the accelerated vector from a ``relaxation_prior`` table (None if empty).
+
+    Raises:
+        ValueError: If the table names a data that is not accelerated.
+    """
+    if not table:
+        return None
+    unknown = sorted(set(table) - set(layout.names) - {"*"})
+    if unknown:
+        raise ValueError(f"coupling.acceleration.relaxation_prior names {unknown}, which are not "
+                         f"accelerated data; accelerated data: {list(layout.names)} (or '*')")
+    default = table.get("*", 1.0)
+    omegas = np.array([table.get(name, default) for name in layout.names], dtype=float)
+    return np.repeat(1.0 - omegas, np.diff(layout.offsets))
+
+
 class _QuasiNewton(Acceleration):
-    """Column management shared by IQN-ILS and IQN-IMVJ."""
+    """Column management shared by IQN-ILS and IQN-IMVJ.
+
+    Attributes:
+        surrogate: ``None`` or an object with ``inverse_jacobian(r)``: the
+            prior ``J0 r`` of a cheaper model of the same coupled problem
+            (module docstring).  ``r`` is one residual vector of the
+            accelerated layout; the result has the same shape.  It replaces
+            the relaxation prior.
+    """
 
     reuse_windows = 0
 
@@ -428,6 +467,30 @@ class _QuasiNewton(Acceleration):
         self.window_columns: list[int] = [0]  # columns per window, current window first
         self.previous_residual: np.ndarray | None = None
         self.previous_output: np.ndarray | None = None
+        self.prior_diagonal = relaxation_prior_diagonal(dict(config.relaxation_prior), layout)
+        self.surrogate: Any = None
+
+    def _has_prior(self) -> bool:
+        return self.surrogate is not None or self.prior_diagonal is not None
+
+    def _prior(self, r: np.ndarray) -> np.ndarray:
+        """``J0 r`` for a vector, or ``J0 R`` column by column for a matrix."""
+        if r.ndim == 2:
+            if r.shape[1] == 0:
+                return np.zeros_like(r)
+            if self.surrogate is None:
+                return self.prior_diagonal[:, None] * r
+            return np.column_stack([self._prior(r[:, j]) for j in range(r.shape[1])])
+        if self.surrogate is not None:
+            out = np.asarray(self.surrogate.inverse_jacobian(r.copy()), dtype=float).reshape(-1)
+            if out.shape != r.shape:
+                raise ValueError(f"surrogate.inverse_jacobian returned shape {out.shape}, expected {r.shape}")
+            return out
+        return self.prior_diagonal * r
+
+    def _prior_step(self, x_tilde: np.ndarray, r: np.ndarray) -> np.ndarray:
+        self.info.relaxation = None
+        return x_tilde - self._prior(r)
 
     @property
     def columns(self) -> tuple[np.ndarray, np.ndarray]:
@@ -502,10 +565,10 @@ class _QuasiNewton(Acceleration):
         first = self.iteration == 0
         if first and (self.windows_completed == 0 or self.config.enforce_initial_relaxation):
             self.info.columns_used = 0
-            return self._relax(x, r)
+            return self._prior_step(x_tilde, r) if self._has_prior() else self._relax(x, r)
         self._filter(self.info)
         if not self._has_model():
-            return self._relax(x, r)
+            return self._prior_step(x_tilde, r) if self._has_prior() else self._relax(x, r)
         self.info.columns_used = self.V.shape[1]
         return self._quasi_newton_step(x, x_tilde, r)
 
@@ -560,6 +623,8 @@ class IQNILS(_QuasiNewton):
 
     def _quasi_newton_step(self, x: np.ndarray, x_tilde: np.ndarray, r: np.ndarray) -> np.ndarray:
         alpha = self._alpha(r)
+        if self._has_prior():
+            return x_tilde - self._prior(r) + (self.W - self._prior(self.V)) @ alpha
         return x_tilde + self.W @ alpha
 
     def _window_converged(self, x: np.ndarray, x_tilde: np.ndarray, r: np.ndarray) -> None:
@@ -591,6 +656,8 @@ class IQNIMVJ(_QuasiNewton):
 
     def _quasi_newton_step(self, x: np.ndarray, x_tilde: np.ndarray, r: np.ndarray) -> np.ndarray:
         if self.jacobian is None:
+            if self._has_prior():
+                return x_tilde - self._prior(r) + (self.W - self._prior(self.V)) @ self._alpha(r)
             return x_tilde + self.W @ self._alpha(r)
         step = -(self.jacobian @ r)
         if self.V.shape[1]:
@@ -604,7 +671,10 @@ class IQNIMVJ(_QuasiNewton):
             w = self.preconditioner.weights
             q, rr = self._least_squares_factors()
             z = sla.solve_triangular(rr, q.T) * w[None, :]
-            if self.jacobian is None:
+            if self.jacobian is None and self._has_prior():
+                prior = self._prior(np.eye(self.layout.size))
+                self.jacobian = prior + (self.W - prior @ self.V) @ z
+            elif self.jacobian is None:
                 self.jacobian = self.W @ z
             else:
                 self.jacobian = self.jacobian + (self.W - self.jacobian @ self.V) @ z

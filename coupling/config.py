@@ -63,9 +63,9 @@ ACCELERATION_OPTIONS: dict[str, tuple[str, ...]] = {
     "constant": ("type", "relaxation"),
     "aitken": ("type", "initial_relaxation", "omega_min", "omega_max", "positive_relaxation", "preconditioner"),
     "iqn-ils": ("type", "initial_relaxation", "enforce_initial_relaxation", "max_used_iterations",
-                "time_windows_reused", "filter", "preconditioner"),
+                "time_windows_reused", "relaxation_prior", "filter", "preconditioner"),
     "iqn-imvj": ("type", "initial_relaxation", "enforce_initial_relaxation", "max_used_iterations",
-                 "filter", "preconditioner"),
+                 "relaxation_prior", "filter", "preconditioner"),
 }
 
 
@@ -262,6 +262,12 @@ class AccelerationConfig:
         time_windows_reused: IQN-ILS: number of past windows whose columns are kept.
         enforce_initial_relaxation: IQN: relax (instead of a quasi-Newton step
             with reused information) in the first iteration of every window.
+        relaxation_prior: IQN: the initial inverse Jacobian of the
+            generalised-Broyden update, ``J0 = diag(1 - ω_d)``: data ``d`` is
+            relaxed with ``ω_d`` in the directions the secant columns do not
+            span (instead of IQN-ILS's plain ``x̃``, i.e. ``ω = 1``).  A table
+            data name -> ω; the key ``"*"`` sets every other data (default 1).
+            Empty (default): no prior, the classical IQN-ILS/IMVJ.
         filter: QR filter options (IQN).
         preconditioner: Scaling options (Aitken, IQN).
     """
@@ -275,6 +281,7 @@ class AccelerationConfig:
     max_used_iterations: int = 50
     time_windows_reused: int = 0
     enforce_initial_relaxation: bool = False
+    relaxation_prior: Mapping[str, float] = field(default_factory=dict)
     filter: FilterConfig = field(default_factory=FilterConfig)
     preconditioner: PreconditionerConfig = field(default_factory=PreconditionerConfig)
 
@@ -294,6 +301,12 @@ class AccelerationConfig:
         _integer(where, "max_used_iterations", self.max_used_iterations, minimum=1)
         _integer(where, "time_windows_reused", self.time_windows_reused, minimum=0)
         _boolean(where, "enforce_initial_relaxation", self.enforce_initial_relaxation)
+        if not isinstance(self.relaxation_prior, Mapping):
+            raise ValueError(f"{where}.relaxation_prior = {self.relaxation_prior!r} must be a table "
+                             f"data -> relaxation factor (key '*': every other data)")
+        object.__setattr__(self, "relaxation_prior",
+                           {str(k): _real(where, f"relaxation_prior[{k!r}]", v, positive=True)
+                            for k, v in self.relaxation_prior.items()})
         if not isinstance(self.filter, FilterConfig):
             raise ValueError(f"{where}.filter must be a FilterConfig, got {self.filter!r}")
         if not isinstance(self.preconditioner, PreconditionerConfig):

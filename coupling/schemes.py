@@ -75,6 +75,11 @@ class CouplingScheme:
         comm: MPI communicator (default: ``MPI.COMM_WORLD`` if mpi4py is
             available, else serial).
         stream: Where progress lines go (default: ``sys.stdout``).
+        surrogate: Optional surrogate model of the same coupled problem for
+            the quasi-Newton accelerations: an object with
+            ``inverse_jacobian(r)`` (the prior ``J0 r`` on the accelerated
+            vector, see :mod:`coupling.acceleration`).  Its prediction, if
+            any, is given with :meth:`set_values`.
 
     Attributes:
         config: The validated configuration.
@@ -96,7 +101,8 @@ class CouplingScheme:
 
     def __init__(self, config: CouplingConfig | Mapping[str, Any],
                  participants: Sequence[Participant] | Mapping[str, Participant],
-                 data: Sequence[Data], comm: Any = None, stream: TextIO | None = None):
+                 data: Sequence[Data], comm: Any = None, stream: TextIO | None = None,
+                 surrogate: Any = None):
         if isinstance(config, Mapping) and "scheme" not in config:
             config = {**config, "scheme": self.scheme_name}
         self.config = load_config(config)
@@ -124,6 +130,13 @@ class CouplingScheme:
         self.layout = VectorLayout(self.accelerated,
                                    [self.values[n].shape for n in self.accelerated])
         self.acceleration: Acceleration = build_acceleration(self.config.acceleration, self.layout)
+        if surrogate is not None:
+            if not hasattr(self.acceleration, "surrogate"):
+                raise ValueError(f"a surrogate needs a quasi-Newton acceleration (iqn-ils, iqn-imvj), "
+                                 f"not {self.config.acceleration.type!r}")
+            if not callable(getattr(surrogate, "inverse_jacobian", None)):
+                raise TypeError("surrogate must have a method inverse_jacobian(r)")
+            self.acceleration.surrogate = surrogate
         self.measures = self._build_measures()
         self.time = 0.0
         self.window = 0
@@ -628,6 +641,91 @@ class CouplingScheme:
         for name, state in snapshot["participants"].items():
             self._call(name, "load_state", state)
 
+    # ------------------------------------------------------------------ reuse across solves
+    def set_values(self, values: Mapping[str, Any]) -> None:
+        """Set the current value of some data (the initial guess of the next window or solve).
+
+        Raises:
+            KeyError: For an unknown data name.
+            ValueError: For a wrong shape.
+        """
+        for name, value in values.items():
+            if name not in self.data:
+                raise KeyError(f"set_values: unknown data {name!r}; data: {list(self.data)}")
+            self.values[name] = self._as_data_array(name, value, "set_values")
+
+    def reuse_state(self, participants: bool = False) -> dict[str, Any]:
+        """What a later solve with the same interface operator can reuse (a copy).
+
+        The converged value of every data (the next initial guess) and the
+        acceleration's complete state: the kept secant columns (IQN-ILS keeps
+        those of the last ``time_windows_reused`` solves or windows), the
+        preconditioner weights, the IMVJ Jacobian.  With ``participants``,
+        also every participant's ``save_state()`` (``None`` for one that does
+        not implement it): a participant that continues from its previous
+        state (e.g. a Newton solver's initial guess) starts from the old
+        solution.  Load it into another scheme of the same data with
+        :meth:`load_reuse_state`.
+        """
+        states: dict[str, Any] = {}
+        if participants:
+            for name in self.order:
+                try:
+                    states[name] = self.participants[name].save_state()
+                except NotImplementedError:
+                    states[name] = None
+        return {"data": list(self.data), "accelerated": list(self.accelerated),
+                "shapes": {n: list(v.shape) for n, v in self.values.items()},
+                "values": {n: v.copy() for n, v in self.values.items()},
+                "acceleration": copy.deepcopy(self.acceleration.state_dict()),
+                "participants": states}
+
+    def load_reuse_state(self, state: Mapping[str, Any], *, values: bool = True,
+                         acceleration: bool = True, participants: bool = True,
+                         scale: Mapping[str, float] | None = None) -> None:
+        """Start from a :meth:`reuse_state` of a related problem (same data, same interface operator).
+
+        Args:
+            state: The exported state.
+            values: Take its data values as the initial guess.
+            acceleration: Take its quasi-Newton information (columns, weights).
+            participants: Load the participant states it holds (``load_state``),
+                if any; they must fit this scheme's participants (same
+                discretisation).  Not rescaled.
+            scale: ``{data: factor}``: the data are ``factor`` times the old
+                ones in this problem's units (e.g. after a change of the unit
+                of stress); values, secant columns and weights are rescaled
+                accordingly.  Data not named keep factor 1.
+
+        Raises:
+            ValueError: If the data (names, shapes, accelerated set) differ.
+        """
+        shapes = {n: list(v.shape) for n, v in self.values.items()}
+        if list(state["data"]) != list(self.data) or list(state["accelerated"]) != list(self.accelerated) \
+                or {n: list(s) for n, s in state["shapes"].items()} != shapes:
+            raise ValueError(f"load_reuse_state: the state belongs to other data ({state['data']}, "
+                             f"shapes {state['shapes']}); this scheme has {list(self.data)}, shapes {shapes}")
+        factors = {n: 1.0 for n in self.data}
+        for name, f in (scale or {}).items():
+            if name not in self.data:
+                raise KeyError(f"load_reuse_state: scale names unknown data {name!r}")
+            if not (math.isfinite(float(f)) and float(f) != 0.0):
+                raise ValueError(f"load_reuse_state: scale[{name!r}] = {f!r} must be finite and nonzero")
+            factors[name] = float(f)
+        if values:
+            self.values = {n: factors[n] * np.asarray(state["values"][n], dtype=float).copy()
+                           for n in self.data}
+        if acceleration:
+            acc = copy.deepcopy(state["acceleration"])
+            _scale_acceleration_state(acc, self.layout, factors)
+            self.acceleration.load_state_dict(acc)
+        if participants:
+            for name, pstate in (state.get("participants") or {}).items():
+                if name not in self.participants:
+                    raise ValueError(f"load_reuse_state: state of unknown participant {name!r}")
+                if pstate is not None:
+                    self._call(name, "load_state", pstate)
+
     # ------------------------------------------------------------------ records
     def write_records(self, directory: str | os.PathLike) -> dict[str, str]:
         """Write the iterations and convergence logs (CSV and JSON) of :attr:`history`.
@@ -780,10 +878,30 @@ class _ParticipantFailure(Exception):
         self.participant, self.iteration, self.error = participant, iteration, error
 
 
+def _scale_acceleration_state(state: dict[str, Any], layout: VectorLayout,
+                              factors: Mapping[str, float]) -> None:
+    """Rescale an acceleration state in place: data ``d`` is multiplied by ``factors[d]``."""
+    if all(factors.get(n, 1.0) == 1.0 for n in layout.names):
+        return
+    s = np.repeat(np.array([factors.get(n, 1.0) for n in layout.names]), np.diff(layout.offsets))
+    for key in ("V", "W"):
+        if key in state and state[key] is not None:
+            state[key] = np.asarray(state[key], dtype=float) * s[:, None]
+    for key in ("previous_residual", "previous_output"):
+        if state.get(key) is not None:
+            state[key] = np.asarray(state[key], dtype=float) * s
+    if state.get("jacobian") is not None:
+        state["jacobian"] = np.asarray(state["jacobian"], dtype=float) * s[:, None] / s[None, :]
+    pre = state.get("preconditioner")
+    if pre is not None and pre.get("kind") in ("value", "residual", "constant"):
+        data_factors = np.array([abs(factors.get(n, 1.0)) for n in layout.names])
+        pre["data_weights"] = np.asarray(pre["data_weights"], dtype=float) / data_factors
+
+
 def build_scheme(config: CouplingConfig | Mapping[str, Any],
                  participants: Sequence[Participant] | Mapping[str, Participant],
                  data: Sequence[Data], comm: Any = None,
-                 stream: TextIO | None = None) -> CouplingScheme:
+                 stream: TextIO | None = None, surrogate: Any = None) -> CouplingScheme:
     """Create the scheme named by ``config.scheme``.
 
     Args:
@@ -792,6 +910,8 @@ def build_scheme(config: CouplingConfig | Mapping[str, Any],
         data: The coupling data.
         comm: MPI communicator (default ``MPI.COMM_WORLD`` if available).
         stream: Destination of the progress lines (default ``sys.stdout``).
+        surrogate: Optional surrogate model for the quasi-Newton prior
+            (see :class:`CouplingScheme`).
 
     Returns:
         A :class:`CouplingScheme` subclass instance.
@@ -805,4 +925,4 @@ def build_scheme(config: CouplingConfig | Mapping[str, Any],
         result = scheme.solve()
     """
     cfg = load_config(config)
-    return _SCHEMES[cfg.scheme](cfg, participants, data, comm=comm, stream=stream)
+    return _SCHEMES[cfg.scheme](cfg, participants, data, comm=comm, stream=stream, surrogate=surrogate)

@@ -85,8 +85,8 @@ from gelcell.geometry import build_device
 from gelcell.parameters import CaseParameters
 
 __all__ = ["Device", "FluidParticipant", "MovingFluidParticipant", "GelParticipant", "CellParticipant",
-           "coupling_data",
-           "default_robin_coefficient", "coupling_config"]
+           "coupling_data", "default_robin_coefficient", "coupling_config", "gamma2_stiffness_ratio",
+           "default_relaxation_prior", "reuse_key"]
 
 FLUID_TO_GEL = ("traction", "velocity")
 GEL_TO_FLUID = ("gel_traction", "mixture_velocity", "interstitial_velocity")
@@ -137,6 +137,62 @@ def default_gamma2_coefficient(params: CaseParameters, diameter: float | None = 
     return float(2.0 * params.displacement_scale / params.stress_scale * params.physics.phi_s0 / radius)
 
 
+def gamma2_stiffness_ratio(params: CaseParameters) -> float:
+    """rho = S_C / S_G: the cell's over the drained network's short-wave stiffness on Gamma2.
+
+    An elastic body of shear modulus mu and Lame constant lam resists a
+    short-wave surface displacement of wavenumber k with the traction
+    2 m(mu, lam) |k| u, m = mu (lam + mu) / (lam + 2 mu) (plane strain
+    half-space).  The gel around the cell is the drained network (mu, lam) =
+    phi_s0 (mu_s, lam_s); so the Dirichlet-Neumann iteration on Gamma2 (the cell
+    takes the displacement, the gel the force) multiplies a short-wave error
+    by -rho.  Measured spectra of the coupled map (docs/coupling.md): the
+    Gamma2 eigenvalues lie between about -rho/2 and -2 rho (the long waves
+    of the small inclusion are the stiffest).  rho = 1 for the default cell
+    and 10 for a cell x10 or a gel x0.1.
+    """
+    def m(mu: float, lam: float) -> float:
+        return mu * (lam + mu) / (lam + 2.0 * mu)
+    ph = params.physics
+    return float(m(params.mu_c, params.lambda_c) / m(ph.phi_s0, ph.phi_s0 * ph.lambda_s))
+
+
+def default_relaxation_prior(params: CaseParameters) -> dict[str, float]:
+    """The quasi-Newton prior of a steady device run: Gamma2 force data relaxed with 1/(1 + rho).
+
+    IQN-ILS does a plain fixed-point step in the directions its secant
+    columns do not span yet; on Gamma2 that step multiplies the error by
+    about -rho (:func:`gamma2_stiffness_ratio`).  The prior J0 = (1 - omega) I
+    with omega = 1/(1 + rho) (the relaxation that removes an eigenvalue
+    -rho) makes those directions contract from the first iteration.  No
+    prior on Gamma1: its eigenvalues lie in [-1, 0], where a relaxation
+    gains nothing measurable (docs/coupling.md).
+    """
+    if not params.with_cell:
+        return {}
+    b = device_boundaries(params.case, True, getattr(params.geometry, "channel_height", 0.2))
+    omega = 1.0 / (1.0 + gamma2_stiffness_ratio(params))
+    return {f"{g}/force": omega for g in b.cell_interfaces}
+
+
+def reuse_key(params: CaseParameters) -> str:
+    """Identifies the scaled coupled problem: equal keys = the same interface operator in solver units.
+
+    Every parameter except Ca: the solver's units of stress and displacement
+    are both proportional to Ca (CaseParameters.stress_scale,
+    displacement_scale), so at fixed everything else the scaled problem, its
+    interface operator and its solution do not depend on Ca (up to the
+    strain-sized nonlinearity of the finite-strain path).
+    """
+    import dataclasses
+    import json
+    d = dataclasses.asdict(params)
+    d["physics"].pop("ca", None)
+    d.pop("coupling", None)
+    d.pop("time", None)
+    return json.dumps(d, sort_keys=True, default=str)
+
+
 def coupling_data(boundaries: DeviceBoundaries, gamma2: str = "dirichlet", kinematics: str = "small") -> list[cp.Data]:
     """The coupling data of a device (see the module docstring)."""
     data = []
@@ -154,10 +210,16 @@ def coupling_data(boundaries: DeviceBoundaries, gamma2: str = "dirichlet", kinem
 
 def coupling_config(scheme: str = "serial", acceleration: str = "iqn-ils", *, limit: float = 1e-10,
                     max_iterations: int = 200, with_cell: bool = True,
-                    overrides: typing.Mapping | None = None, transient: bool = False) -> dict:
+                    overrides: typing.Mapping | None = None, transient: bool = False,
+                    params: CaseParameters | None = None, gamma2: str = "dirichlet") -> dict:
     """A ``[coupling]`` table for a device run (TOML overrides are merged on top).
 
     Convergence: every exchanged data to a relative residual ``limit``.
+    Steady serial runs with IQN, the case's ``params`` and the default
+    Dirichlet-Neumann ``gamma2``: the Gamma2 relaxation prior
+    (:func:`default_relaxation_prior`; it is derived for that split), and the secant columns of the
+    last 4 solves are kept (``time_windows_reused``; no effect on one solve,
+    reused by a Ca sweep, see ``Device.solve(reuse=...)``).
     Time-dependent runs (``transient``): each window starts from the linear
     extrapolation of the last two, and IQN-ILS keeps the secant columns of
     the last 40 windows (at most 500): for a fixed dt the windows share one
@@ -185,6 +247,13 @@ def coupling_config(scheme: str = "serial", acceleration: str = "iqn-ils", *, li
             acc["max_used_iterations"] = 500
             if acceleration == "iqn-ils":
                 acc["time_windows_reused"] = 40
+        else:
+            if acceleration == "iqn-ils":
+                acc["time_windows_reused"] = 4
+            prior = (default_relaxation_prior(params)
+                     if params is not None and scheme == "serial" and gamma2 == "dirichlet" else {})
+            if prior:
+                acc["relaxation_prior"] = prior
     config = {"scheme": f"{scheme}-implicit" if scheme in ("serial", "parallel") else scheme,
               "order": order, "max_iterations": max_iterations, "acceleration": acc,
               "convergence": [{"type": "relative", "limit": limit, "data": "*"}]}
@@ -484,12 +553,39 @@ class Device:
         self.scheme: cp.CouplingScheme | None = None
         self.result: cp.CouplingResult | None = None
 
+    def _fits(self, states: typing.Mapping | None) -> bool:
+        """Whether participant states (``save_state()`` per name) have this device's array shapes."""
+        def shapes(obj):
+            if isinstance(obj, dict):
+                return {k: shapes(v) for k, v in obj.items()}
+            return np.shape(obj)
+        mine = {p.name: p.save_state() for p in self.participants}
+        ok = bool(states) and all(name in mine and shapes(st) == shapes(mine[name])
+                                  for name, st in states.items() if st is not None)
+        return bool(self.comm.allreduce(ok, op=MPI.LAND))      # the same decision on every rank
+
     def solve(self, config: typing.Mapping | None = None, verbose: bool = True,
-              record_data: bool = False) -> cp.CouplingResult:
-        """Run the partitioned coupling to convergence (steady state)."""
-        config = dict(config or coupling_config(with_cell=self.cell is not None))
+              record_data: bool = False, reuse: typing.Mapping | None = None,
+              initial: typing.Mapping | None = None) -> cp.CouplingResult:
+        """Run the partitioned coupling to convergence (steady state).
+
+        ``reuse``: a ``scheme.reuse_state()`` of a solve of the same scaled
+        problem (equal :func:`reuse_key`, e.g. the previous value of a Ca
+        sweep): its converged interface data are the initial guess and its
+        quasi-Newton columns the initial model.  In solver units the data of
+        such problems are the same, so no rescaling is needed.  Participant
+        states in it (the field solutions: the linear path's starting point)
+        are loaded if they have this device's array shapes.  ``initial``:
+        interface data (solver units) that replace the initial guess, e.g. a
+        prediction extrapolated from earlier solves.
+        """
+        config = dict(config or coupling_config(with_cell=self.cell is not None, params=self.params))
         config.setdefault("verbose", verbose)
         config.setdefault("record_data", record_data)
         self.scheme = cp.build_scheme(config, self.participants, self.data, comm=self.comm)
+        if reuse is not None:
+            self.scheme.load_reuse_state(reuse, participants=self._fits(reuse.get("participants")))
+        if initial is not None:
+            self.scheme.set_values(initial)
         self.result = self.scheme.solve()
         return self.result

@@ -20,7 +20,7 @@ from mpi4py import MPI
 import coupling as cp
 from femtools.io import atomic_directory, check_output_target
 from gelcell.checks import format_residuals, interface_residuals
-from gelcell.device import Device, coupling_config, default_robin_coefficient
+from gelcell.device import Device, coupling_config, default_robin_coefficient, reuse_key
 from gelcell.geometry import build_device
 from gelcell.monolithic import MonolithicCoefficients, MonolithicSolver
 from gelcell.output import DerivedFields, write_fields, write_json_file, write_profiles
@@ -29,7 +29,83 @@ from gelcell.results import DeviceFields, fields_from_device, fields_from_monoli
 from gelcell.validity import check_case, model_warnings
 
 __all__ = ["run_case", "solve_partitioned", "solve_monolithic", "format_summary", "CaseRun",
-           "partitioned_config"]
+           "partitioned_config", "ReuseStore"]
+
+
+class ReuseStore:
+    """The coupling state carried from one solve to the next of a sweep (see :func:`solve_partitioned`).
+
+    Attributes:
+        key: What identifies the scaled problem (and the coupling configuration) of the states.
+        states: ``[(Ca, scheme.reuse_state()), ...]`` of the last three solves with that key.
+    """
+
+    def __init__(self) -> None:
+        self.key: typing.Any = None
+        self.states: list[tuple[float, dict]] = []
+
+    @property
+    def state(self) -> dict | None:
+        """The newest reusable state (None if none)."""
+        return self.states[-1][1] if self.states else None
+
+    def add(self, key: typing.Any, ca: float, state: dict) -> None:
+        if key != self.key:
+            self.key, self.states = key, []
+        self.states = [(c, st) for c, st in self.states if c != float(ca)]
+        self.states = (self.states + [(float(ca), state)])[-3:]
+
+    def _weights(self, ca: float) -> list[float]:
+        cs = [c for c, _ in self.states]
+        weights = []
+        for i, ci in enumerate(cs):
+            w = 1.0
+            for j, cj in enumerate(cs):
+                if j != i:
+                    w *= (float(ca) - cj) / (ci - cj)
+            weights.append(w)
+        return weights
+
+    def prediction(self, ca: float) -> dict | None:
+        """The newest state with its interface data and participant states extrapolated to ``ca``.
+
+        Lagrange polynomial in Ca through the last two (linear) or three
+        (quadratic) solves; the newest state as it is with only one (or far
+        outside the known values).  In
+        solver units the data and fields depend on Ca only through the
+        strain-sized nonlinearity, smooth in Ca: the extrapolation removes
+        its first- (second-) order part.  None without a state.
+        """
+        if not self.states:
+            return None
+        newest = self.states[-1][1]
+        # far outside the known values a polynomial amplifies the states' 1e-10 convergence noise:
+        # fall back to fewer points (linear beyond 2x their span, none beyond 10x)
+        cs = [c for c, _ in self.states]
+        reach = abs(float(ca) - cs[-1]) / max(max(cs) - min(cs), 1e-300)
+        used = self.states if reach <= 2.0 else self.states[-2:] if reach <= 10.0 else self.states[-1:]
+        if len(used) < 2:
+            return newest
+        saved, self.states = self.states, used
+        try:
+            weights = self._weights(ca)
+        finally:
+            self.states = saved
+
+        def combine(parts):
+            first = parts[0]
+            if isinstance(first, dict):
+                return {k: combine([p[k] for p in parts]) for k in first}
+            if isinstance(first, np.ndarray) and first.dtype.kind == "f" and \
+                    all(isinstance(p, np.ndarray) and p.shape == first.shape for p in parts):
+                return sum(w * p for w, p in zip(weights, parts))
+            return parts[-1]
+
+        states = [st for _, st in used]
+        out = dict(newest)
+        out["values"] = combine([st["values"] for st in states])
+        out["participants"] = combine([st.get("participants") or {} for st in states])
+        return out
 
 
 class CaseRun(typing.NamedTuple):
@@ -57,13 +133,15 @@ def monolithic_coefficients(params: CaseParameters) -> MonolithicCoefficients:
 
 
 def partitioned_config(params: CaseParameters, scheme: str = "serial", acceleration: str = "iqn-ils",
-                       coupling: typing.Mapping | None = None, transient: bool = False) -> dict:
+                       coupling: typing.Mapping | None = None, transient: bool = False,
+                       gamma2: str = "dirichlet") -> dict:
     """The ``[coupling]`` table of a partitioned run (defaults < the case's < ``coupling``), validated.
 
     Raises :class:`ParameterError` naming the bad key or value, before anything is meshed.
     """
     config = coupling_config(scheme, acceleration, with_cell=params.with_cell,
-                             overrides=dict(coupling or params.coupling or {}), transient=transient)
+                             overrides=dict(coupling or params.coupling or {}), transient=transient,
+                             params=params, gamma2=gamma2)
     try:
         cp.load_config(config)
     except ValueError as exc:
@@ -74,14 +152,36 @@ def partitioned_config(params: CaseParameters, scheme: str = "serial", accelerat
 def solve_partitioned(params: CaseParameters, scheme: str = "serial", acceleration: str = "iqn-ils",
                       coupling: typing.Mapping | None = None, comm: MPI.Comm = MPI.COMM_WORLD,
                       verbose: bool = True, robin_coefficient: float | None = None,
-                      checks: bool = True, gamma2: str = "dirichlet") -> CaseRun:
-    """Solve a case with the partitioned scheme; summary with coupling, timing and checks."""
+                      checks: bool = True, gamma2: str = "dirichlet",
+                      reuse: "ReuseStore | None" = None) -> CaseRun:
+    """Solve a case with the partitioned scheme; summary with coupling, timing and checks.
+
+    ``reuse``: a :class:`ReuseStore` carried across related solves (a sweep).
+    If it holds the state of a solve with the same :func:`gelcell.device.reuse_key`
+    (the same scaled problem, e.g. another Ca) and the same coupling
+    configuration, that state starts this solve; afterwards the store holds
+    this solve's state.
+    """
     t0 = time.perf_counter()
     check_case(params)
-    config = partitioned_config(params, scheme, acceleration, coupling)
+    config = partitioned_config(params, scheme, acceleration, coupling, gamma2=gamma2)
     device = Device(params, comm, robin_coefficient=robin_coefficient, gamma2=gamma2)
     t1 = time.perf_counter()
-    result = device.solve(config, verbose=verbose)
+    key = None
+    if reuse is not None:
+        key = (reuse_key(params), repr(sorted(config.items())), robin_coefficient, gamma2)
+    reused = reuse is not None and reuse.key == key and reuse.state is not None
+    try:
+        result = device.solve(config, verbose=verbose, reuse=reuse.prediction(params.physics.ca) if reused else None)
+    except cp.CouplingError:
+        if not reused:
+            raise
+        # the reused information did not fit after all: solve this value from scratch
+        reused = False
+        device = Device(params, comm, robin_coefficient=robin_coefficient, gamma2=gamma2)
+        result = device.solve(config, verbose=verbose)
+    if reuse is not None:
+        reuse.add(key, params.physics.ca, device.scheme.reuse_state(participants=True))
     t_solve = time.perf_counter() - t1
     fields = fields_from_device(device)
     summary = summarize(fields)
@@ -91,7 +191,7 @@ def solve_partitioned(params: CaseParameters, scheme: str = "serial", accelerati
         "robin_coefficient": device.alpha_n, "gamma2": device.gamma2,
         "gamma2_coefficient": device.kappa if device.gamma2 == "robin" else None,
         "iterations": result.iterations, "converged": result.converged,
-        "reason": result.reason, "residual_history": result.residual_history,
+        "reason": result.reason, "reused": reused, "residual_history": result.residual_history,
         "relaxation": result.relaxation}
     summary["mesh"] = {
         "fluid": {"cells": _cells(device.fluid.velocity), "dofs": _dofs(device.fluid.W)},
@@ -243,7 +343,8 @@ def run_case(params: CaseParameters, out: str | None, *, monolithic: bool = Fals
              acceleration: str = "iqn-ils", coupling: typing.Mapping | None = None,
              comm: MPI.Comm = MPI.COMM_WORLD, verbose: bool = True, figures: bool = True,
              fields: bool = True, overlay_profiles: dict | None = None, stream=None,
-             extra_json: dict | None = None, gamma2: str = "dirichlet", shown_path: str | None = None) -> dict:
+             extra_json: dict | None = None, gamma2: str = "dirichlet", shown_path: str | None = None,
+             reuse: ReuseStore | None = None) -> dict:
     """Solve one case and write its outputs into ``out`` (whole or not at all).
 
     ``out`` and the model's limits are checked before anything is meshed; the
@@ -262,7 +363,7 @@ def run_case(params: CaseParameters, out: str | None, *, monolithic: bool = Fals
     if monolithic:
         run = solve_monolithic(params, comm)
     else:
-        run = solve_partitioned(params, scheme, acceleration, coupling, comm, verbose, gamma2=gamma2)
+        run = solve_partitioned(params, scheme, acceleration, coupling, comm, verbose, gamma2=gamma2, reuse=reuse)
     summary = report(run.summary, params)
     say(format_summary(summary))
     if "interface_residuals" in summary:

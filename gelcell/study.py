@@ -68,9 +68,11 @@ class Method:
     robin_factor: float = 1.0      # multiple of the device's default alpha_n
     gamma2: str = "dirichlet"      # the cell's condition on Gamma2: "dirichlet" or "robin"
 
-    def config(self, with_cell: bool, max_iterations: int) -> dict:
+    def config(self, with_cell: bool, max_iterations: int, params: CaseParameters | None = None) -> dict:
+        """The ``[coupling]`` table: the device default of the case (with ``params``: its Gamma2
+        relaxation prior, gelcell.device.default_relaxation_prior), then this method's options."""
         base = coupling_config(self.scheme, self.acceleration["type"], with_cell=with_cell,
-                               max_iterations=max_iterations)
+                               max_iterations=max_iterations, params=params, gamma2=self.gamma2)
         acc = dict(base["acceleration"])
         acc.update({k: v for k, v in self.acceleration.items()})
         base["acceleration"] = {k: v for k, v in acc.items()
@@ -118,6 +120,8 @@ def study_methods(quick: bool = False) -> list[Method]:
     methods += [Method("iqn-ils robin gamma2", "serial", iqn, gamma2="robin"),
                 Method("aitken robin gamma2", "serial", {"type": "aitken", "initial_relaxation": 0.5},
                        gamma2="robin")]
+    # the Gamma2 relaxation prior of the default (omega = 1/(1 + rho), docs/coupling.md): without it
+    methods.append(Method("iqn-ils no prior", "serial", {**iqn, "relaxation_prior": {}}))
     # the preconditioner: residual-sum weights drift every iteration (the default is value scaling)
     methods.append(Method("iqn-ils residual-sum", "serial", {**iqn, "preconditioner": {"type": "residual-sum"}}))
     # the partitioning variant: the Robin coefficient of the fluid's mass condition on Gamma1/Gamma3
@@ -182,7 +186,7 @@ def run_one(case: StudyCase, method: Method, mesh_size: float, reference, max_it
     params = case.parameters(mesh_size)
     device = Device(params, comm, robin_coefficient=method.robin_factor * default_robin_coefficient(params),
                     gamma2=method.gamma2)
-    config = method.config(True, max_iterations)
+    config = method.config(True, max_iterations, params)
     t0 = time.perf_counter()
     result, error = None, None
     try:

@@ -5,6 +5,14 @@ discard the others: the sweep writes every completed run, lists the failed
 values with their error in sweep.csv/sweep.json, and then raises
 :class:`gelcell.errors.SweepError`.
 
+Reuse (``--param ca``).  In the solver's units (stress Ca mu_s, displacement
+Ca L0) every value of a Ca sweep is the same coupled problem up to the
+strain-sized nonlinearity (gelcell.device.reuse_key).  Each value after the
+first therefore starts from the previous values' interface data and field
+states extrapolated in Ca, with their quasi-Newton columns
+(gelcell.runner.ReuseStore); sweep.csv records ``iterations`` and ``reused``.
+Other sweeps change the interface operator and start from rest.
+
 Beyond linearity (``--param ca``).  At fixed moduli Ca sets the flow speed;
 the flow is Ca-independent in the paper's units and every displacement,
 strain and stress is proportional to Ca as long as the response is linear.
@@ -31,7 +39,7 @@ from femtools.io import atomic_directory
 from gelcell.errors import SweepError, exit_code, message
 from gelcell.output import write_json_file
 from gelcell.parameters import CaseParameters, ParameterError
-from gelcell.runner import run_case
+from gelcell.runner import ReuseStore, run_case
 
 __all__ = ["run_sweep", "run_name", "check_distinct", "SWEEP_QUANTITIES"]
 
@@ -73,6 +81,7 @@ def _row(summary: dict) -> dict:
         row[name] = None if v is None else (v if sub is None else v[sub])
     c = summary.get("coupling") or {}
     row["iterations"] = c.get("iterations")
+    row["reused"] = c.get("reused")
     row["converged"] = c.get("converged", True)
     row["Ca"] = summary["parameters"]["dimensionless"]["Ca"] if "dimensionless" in summary["parameters"] else None
     row["model_warnings"] = "; ".join(summary["model"]["warnings"])
@@ -110,6 +119,9 @@ def run_sweep(cases: list[CaseParameters], param: str, values: list[float], out:
     check_distinct(param, values)
     final = os.path.abspath(out)
     rows, failures = [], []
+    # one store per kinematics path: consecutive values of the same scaled problem (a Ca sweep) reuse the
+    # previous value's interface data and quasi-Newton columns (gelcell.runner.solve_partitioned)
+    stores: dict[str, ReuseStore] = {}
     with atomic_directory(out, comm) as tmp:
         for value, params in zip(values, cases):
             name = run_name(param, value)
@@ -118,7 +130,8 @@ def run_sweep(cases: list[CaseParameters], param: str, values: list[float], out:
             try:
                 summaries = [run_case(p, os.path.join(tmp, "runs", n), monolithic=monolithic, scheme=scheme,
                                       acceleration=acceleration, comm=comm, verbose=verbose, figures=False,
-                                      fields=False, gamma2=gamma2, shown_path=os.path.join(final, "runs", n))
+                                      fields=False, gamma2=gamma2, shown_path=os.path.join(final, "runs", n),
+                                      reuse=stores.setdefault(p.kinematics, ReuseStore()))
                              for n, p in runs]
             except Exception as exc:  # noqa: BLE001  (one failed value must not discard the others)
                 if comm.rank == 0:
