@@ -80,7 +80,7 @@ from fluid.ale import MovingStokesSolver
 from gel import GelParameters, PoroelasticGelSolver
 from femtools.serialize import CanonicalOrder
 from femtools.timestepping import WindowClock
-from gelcell.boundaries import DeviceBoundaries
+from gelcell.boundaries import DeviceBoundaries, device_layout
 from gelcell.geometry import build_device
 from gelcell.parameters import CaseParameters
 
@@ -170,7 +170,7 @@ def default_relaxation_prior(params: CaseParameters) -> dict[str, float]:
     """
     if not params.with_cell:
         return {}
-    b = device_boundaries(params.case, True, getattr(params.geometry, "channel_height", 0.2))
+    b = device_layout(params).boundaries       # every cell's Gamma2 (built-in or geometry file)
     omega = 1.0 / (1.0 + gamma2_stiffness_ratio(params))
     return {f"{g}/force": omega for g in b.cell_interfaces}
 
