@@ -23,6 +23,7 @@ from mpi4py import MPI
 import femtools.io as fio
 from femtools.io import MARKER, OutputError, atomic_directory, check_output_target, deferred_signals
 from gelcell.errors import Interrupted, install_signal_handlers
+from paused_cli import paused_gelcell, signal_when_paused
 
 SELF = MPI.COMM_SELF
 
@@ -278,15 +279,9 @@ def test_cli_marks_and_replaces_its_own_output(old_results):
 @pytest.mark.parametrize("signum, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
 def test_cli_signal_while_solving_leaves_nothing_behind(old_results, signum, code):
     out, files, text = old_results
-    env = dict(os.environ, MPLBACKEND="Agg", PYTHONUNBUFFERED="1")
-    proc = subprocess.Popen([sys.executable, "-m", "gelcell.cli", "run", "shear", "--mesh-size", "3",
-                             "--no-figures", "--out", str(out)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=env)
-    for line in proc.stdout:
-        if line.lstrip().startswith("it "):           # the coupling iterations have started
-            proc.send_signal(signum)
-            break
-    _, err = proc.communicate(timeout=120)
+    # the signal arrives inside the gel's second solve: the coupling iterations have started
+    proc = paused_gelcell(["run", "shear", "--mesh-size", "3", "--no-figures", "--out", str(out)])
+    _, err = signal_when_paused(proc, signum, timeout=120)
     assert proc.returncode == code, err
     assert f"interrupted by {signal.Signals(signum).name}" in err and "Traceback" not in err
     assert sorted(os.listdir(out)) == files and read(out) == text

@@ -23,6 +23,7 @@ from mpi4py import MPI
 from gelcell import cli
 from gelcell.timesettings import time_scales
 from gelcell.transient import COLUMNS, PartitionedBackend, run_transient_case
+from paused_cli import paused_gelcell, signal_when_paused
 from transient_cases import case, tau
 
 COMM = MPI.COMM_WORLD
@@ -141,12 +142,9 @@ def test_sigint_keeps_the_checkpoint_and_resume_finishes(tmp_path):
     ref = gelcell(*common, "--out", str(tmp_path / "ref"))
     assert ref.wait(timeout=600) == 0, ref.stdout.read()
     out = tmp_path / "res"
-    proc = gelcell(*common, "--out", str(out))
-    for line in proc.stdout:
-        if line.startswith("window    3"):
-            proc.send_signal(signal.SIGINT)
-            break
-    proc.communicate(timeout=600)
+    # SIGINT arrives at the start of window 4 (window 3 is checkpointed)
+    proc = paused_gelcell(common + ["--out", str(out)], target="gelcell.device.GelParticipant.advance", call=4)
+    signal_when_paused(proc, signal.SIGINT)
     assert proc.returncode != 0
     assert (tmp_path / "res.partial" / "checkpoint.npz").is_file()
     assert not out.exists()
