@@ -248,8 +248,22 @@ class CellMaterial:
         return p
 
 
+class _Cells:
+    """The cells of a built-in geometry: ``cells`` if given, else its one cell (``cell_centre``, ``cell_diameter``)."""
+
+    def cell_list(self) -> list[tuple[float, float, float]]:
+        """Centre and diameter of every (whole) cell."""
+        if self.cells:
+            return [tuple(c) for c in self.cells]
+        return [(*self.cell_centre, self.cell_diameter)]
+
+    @property
+    def min_cell_diameter(self) -> float:
+        return min(c[2] for c in self.cell_list())
+
+
 @dataclasses.dataclass(frozen=True)
-class ShearGeometry:
+class ShearGeometry(_Cells):
     """Shear-flow device (model.md section 4), lengths in units of L0.
 
     Channel ``x ∈ [0, upstream_length + chamber_width + downstream_length]``,
@@ -270,16 +284,6 @@ class ShearGeometry:
     cell_offset_x: float = 0.0
     #: several cells: ((x, y, d), ...) centres and diameters; empty: the one cell of e, cell_offset_x
     cells: tuple = ()
-
-    def cell_list(self) -> list[tuple[float, float, float]]:
-        """Centre and diameter of every cell."""
-        if self.cells:
-            return [tuple(c) for c in self.cells]
-        return [(*self.cell_centre, self.cell_diameter)]
-
-    @property
-    def min_cell_diameter(self) -> float:
-        return min(c[2] for c in self.cell_list())
 
     @property
     def channel_length(self) -> float:
@@ -348,7 +352,7 @@ class ShearGeometry:
 
 
 @dataclasses.dataclass(frozen=True)
-class NormalGeometry:
+class NormalGeometry(_Cells):
     """Normal-flow device (model.md section 4), lower half of one unit, lengths in L0.
 
     Upstream fluid ``x ∈ [-upstream_length, 0]``, gel ``x ∈ [0, gel_length]``
@@ -371,16 +375,6 @@ class NormalGeometry:
     #: several cells: ((x, y, d), ...); a cell centred on y = height is cut by the symmetry line
     #: (its lower half is in the domain); empty: the one cell of e
     cells: tuple = ()
-
-    def cell_list(self) -> list[tuple[float, float, float]]:
-        """Centre and diameter of every (whole) cell."""
-        if self.cells:
-            return [tuple(c) for c in self.cells]
-        return [(*self.cell_centre, self.cell_diameter)]
-
-    @property
-    def min_cell_diameter(self) -> float:
-        return min(c[2] for c in self.cell_list())
 
     def on_symmetry_line(self, y: float) -> bool:
         """Whether a cell centred at height ``y`` is cut by the symmetry line y = height (half a cell)."""
