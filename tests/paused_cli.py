@@ -20,7 +20,10 @@ def paused_gelcell(args: list[str], target: str = "gelcell.device.GelParticipant
     """``gelcell *args`` whose ``call``-th call of ``target`` (module.Class.method) waits for a signal."""
     module, cls, method = target.rsplit(".", 2)
     script = textwrap.dedent(f"""
-        import sys, time
+        import signal, sys, time
+        # a child of a background job starts with SIGINT ignored; gmsh restores that state when
+        # it finalizes, so set Python's handler before anything imports gmsh
+        signal.signal(signal.SIGINT, signal.default_int_handler)
         import {module} as target_module
         from gelcell.cli import main
         original = getattr(target_module.{cls}, {method!r})
