@@ -284,6 +284,18 @@ def _parse_groups(info: GeometryInfo, problems: list) -> _Parsed:
     return _Parsed(surfaces, cells, curves, cell_boundaries, owner)
 
 
+def _symmetry_axis(c: int, p: np.ndarray, scale: float, name: str | None = None):
+    """``(horizontal, None)`` for a straight axis-aligned symmetry curve, else ``(None, problem)``."""
+    label = f"symmetry curve {c} {_where(p)}" + (f" ('{name}')" if name else "")
+    if not _straight(p, scale):
+        return None, f"{label} is not straight"
+    horizontal = abs(p[0, 1] - p[-1, 1]) <= 1e-9 * scale
+    vertical = abs(p[0, 0] - p[-1, 0]) <= 1e-9 * scale
+    if not (horizontal or vertical):
+        return None, f"{label} is neither horizontal nor vertical: gelcell supports axis-aligned symmetry lines only"
+    return horizontal, None
+
+
 def _straight(points: np.ndarray, scale: float) -> bool:
     a, b = points[0], points[-1]
     t = b - a
@@ -516,14 +528,9 @@ def _analyse(info: GeometryInfo) -> FileLayout:
         sym = []
         for c in cell_sym.get(k, []):
             p = info.curve_points[c]
-            if not _straight(p, info.scale):
-                problems.append(f"symmetry curve {c} {_where(p)} is not straight")
-                continue
-            horizontal = abs(p[0, 1] - p[-1, 1]) <= 1e-9 * info.scale
-            vertical = abs(p[0, 0] - p[-1, 0]) <= 1e-9 * info.scale
-            if not (horizontal or vertical):
-                problems.append(f"symmetry curve {c} {_where(p)} is neither horizontal nor vertical: gelcell "
-                                f"supports axis-aligned symmetry lines only")
+            horizontal, problem = _symmetry_axis(c, p, info.scale)
+            if problem:
+                problems.append(problem)
                 continue
             comp = 1 if horizontal else 0
             sym.append(comp)
@@ -613,14 +620,9 @@ def _analyse(info: GeometryInfo) -> FileLayout:
             side = [region[s] for s in info.adjacent[c] if s in region]
             if not side:
                 continue          # a cell's flat edge, handled above
-            if not _straight(p, info.scale):
-                problems.append(f"symmetry curve {c} {_where(p)} ('{name}') is not straight")
-                continue
-            horizontal = abs(p[0, 1] - p[-1, 1]) <= 1e-9 * info.scale
-            vertical = abs(p[0, 0] - p[-1, 0]) <= 1e-9 * info.scale
-            if not (horizontal or vertical):
-                problems.append(f"symmetry curve {c} {_where(p)} ('{name}') is neither horizontal nor vertical: "
-                                f"gelcell supports axis-aligned symmetry lines only")
+            horizontal, problem = _symmetry_axis(c, p, info.scale, name)
+            if problem:
+                problems.append(problem)
                 continue
             tag = {("fluid", True): Tag.SYMMETRY_BOTTOM, ("fluid", False): Tag.FLUID_SYMMETRY_X,
                    ("gel", True): Tag.GEL_SYMMETRY_Y, ("gel", False): Tag.GEL_SYMMETRY_X}[(side[0], horizontal)]
