@@ -41,6 +41,7 @@ from coupling.config import load_config
 from coupling.mapping import build_mapping, order_along_curve
 from gelcell.device import Device, coupling_config, gamma2_stiffness_ratio
 from gelcell.parameters import CaseParameters
+from gelcell.study import StudyCase
 
 IQN = {"type": "iqn-ils", "initial_relaxation": 0.5, "max_used_iterations": 100,
        "filter": {"type": "qr2", "limit": 1e-3}, "preconditioner": {"type": "value"}}
@@ -137,13 +138,8 @@ def main() -> None:
     ap.add_argument("--gel-moduli", type=float, default=1.0)
     args = ap.parse_args()
 
-    def params(mesh):
-        p = CaseParameters.default(args.case, True).with_mesh_size(mesh)
-        if args.cell_moduli != 1.0:
-            p = p.with_cell_moduli(args.cell_moduli)
-        if args.gel_moduli != 1.0:
-            p = p.with_gel_moduli(args.gel_moduli)
-        return p
+    # the study's case builder: the same parameters as `gelcell study` for this stiffness variant
+    params = StudyCase(args.case, args.case, args.cell_moduli, args.gel_moduli).parameters
 
     t0 = time.perf_counter()
     a, xs, layout, pts = extract(params(args.mesh_size))
