@@ -50,13 +50,37 @@ def _streamlines(ax, tri, vx, vy):
     ax.streamplot(gx, gy, u, v, color="w", linewidth=0.6, density=1.2, arrowsize=0.6)
 
 
-#: PNG options: zlib level 1 (the pixels are the same; the encoding takes a quarter of the time)
-_PNG = {"dpi": 150, "bbox_inches": "tight", "pil_kwargs": {"compress_level": 1}}
+#: resolution of the figures, and the margin left around what is drawn (as savefig's pad_inches)
+_DPI = 150
+_PAD_INCHES = 0.1
+
+
+def write_png(fig, path: str) -> None:
+    """Render ``fig`` once and write it as a PNG cropped to what is drawn.
+
+    The crop replaces ``bbox_inches="tight"``, which lays the figure out and
+    draws it twice (a second for each figure); trimming white rows and
+    columns of the one rendering gives the same picture.  zlib level 1:
+    the pixels are the same, the encoding takes a quarter of the time.
+    """
+    from PIL import Image
+    fig.set_dpi(_DPI)
+    fig.canvas.draw()
+    rgba = np.asarray(fig.canvas.buffer_rgba())
+    drawn = np.any(rgba != 255, axis=2)
+    rows, cols = np.flatnonzero(drawn.any(axis=1)), np.flatnonzero(drawn.any(axis=0))
+    if rows.size:
+        pad = int(round(_PAD_INCHES * _DPI))
+        r0, r1 = max(rows[0] - pad, 0), min(rows[-1] + 1 + pad, rgba.shape[0])
+        c0, c1 = max(cols[0] - pad, 0), min(cols[-1] + 1 + pad, rgba.shape[1])
+        rgba = rgba[r0:r1, c0:c1]
+    Image.fromarray(np.ascontiguousarray(rgba), "RGBA").save(path, format="png", compress_level=1,
+                                                             dpi=(_DPI, _DPI))
 
 
 def _save(fig, directory, name, written):
     path = os.path.join(directory, name)
-    fig.savefig(path, **_PNG)
+    write_png(fig, path)
     plt.close(fig)
     written.append(name)
 
@@ -81,7 +105,7 @@ def plot_profiles(path: str, profiles: dict, params, overlay: dict | None = None
     if overlay is not None:
         axes[0, 0].legend()
     fig.suptitle(f"{params.label}: profiles along Γ1")
-    fig.savefig(path, **_PNG)
+    write_png(fig, path)
     plt.close(fig)
 
 
