@@ -47,3 +47,13 @@ def shared_tmp_path(tmp_path, comm):
     """A temporary directory that is the same on every MPI rank (rank 0's ``tmp_path``)."""
     path = comm.bcast(str(tmp_path) if comm.Get_rank() == 0 else None, root=0)
     return pathlib.Path(path)
+
+
+@pytest.fixture
+def cli_stderr(capsys, comm):
+    """``cli_stderr()``: what the CLI printed on stderr since the last read, as rank 0 printed it.
+
+    The CLI prints an error once, on rank 0; every rank gets rank 0's text, so a
+    test asserts the same message on every rank.
+    """
+    return lambda: comm.bcast(capsys.readouterr().err, root=0)

@@ -156,11 +156,6 @@ def test_sigint_keeps_the_checkpoint_and_resume_finishes(tmp_path):
     assert_same_series(read_series(out), read_series(tmp_path / "ref"), 1e-12)
 
 
-def printed_error(capsys) -> str:
-    """What the CLI printed on stderr: errors are printed once, by rank 0."""
-    return MPI.COMM_WORLD.bcast(capsys.readouterr().err, root=0)
-
-
 def main(*args):
     return cli.main(list(args))
 
@@ -182,10 +177,10 @@ BAD = [
 
 
 @pytest.mark.parametrize("args,name", BAD, ids=[" ".join(a) for a, _ in BAD])
-def test_bad_time_input_is_refused_before_meshing(tmp_path, capsys, args, name):
+def test_bad_time_input_is_refused_before_meshing(tmp_path, cli_stderr, args, name):
     out = tmp_path / "out"
     assert main("run", "shear", "--transient", *args, "--out", str(out)) == 2
-    err = printed_error(capsys)
+    err = cli_stderr()
     assert name in err, err
     assert not out.exists() and not (tmp_path / "out.partial").exists()
 
@@ -195,13 +190,13 @@ TABLES = [("t,f\n0,0\n1,1\n1,2\n", "increase"), ("0,0\n1,nan\n", "NaN"), ("t,f\n
 
 
 @pytest.mark.parametrize("text,why", TABLES, ids=[w for _, w in TABLES])
-def test_malformed_inflow_table_is_refused(tmp_path, capsys, text, why):
+def test_malformed_inflow_table_is_refused(tmp_path, cli_stderr, text, why):
     table = tmp_path / "inflow.csv"
     table.write_text(text)
     out = tmp_path / "out"
     assert main("run", "shear", "--transient", "--inflow", f"table:{table}", "--t-end", "1e-6",
                 "--out", str(out)) == 2
-    err = printed_error(capsys)
+    err = cli_stderr()
     assert "inflow" in err and why in err, err
     assert not out.exists()
 
@@ -221,15 +216,15 @@ def test_inflow_table_from_a_config_file_is_relative_to_it(tmp_path):
     assert settings.inflow == f"table:{tmp_path / 'pump.csv'}"
 
 
-def test_time_options_need_transient(tmp_path, capsys):
+def test_time_options_need_transient(tmp_path, cli_stderr):
     assert main("run", "shear", "--dt", "1e-7", "--out", str(tmp_path / "o")) == 2
-    assert "--transient" in printed_error(capsys)
+    assert "--transient" in cli_stderr()
 
 
-def test_resume_refuses_another_case_and_missing_checkpoints(tmp_path, capsys):
+def test_resume_refuses_another_case_and_missing_checkpoints(tmp_path, cli_stderr):
     out = tmp_path / "run"
     assert main("run", "--resume", str(out)) == 2
-    assert "nothing to resume" in printed_error(capsys)
+    assert "nothing to resume" in cli_stderr()
     # a checkpoint of a shear run: resuming it as the normal-flow device is refused before meshing
     partial = tmp_path / "run.partial"
     partial.mkdir()
@@ -241,10 +236,10 @@ def test_resume_refuses_another_case_and_missing_checkpoints(tmp_path, capsys):
     (partial / "run.json").write_text(json.dumps(record, default=str))
     (partial / "checkpoint.npz").write_bytes(b"")
     assert main("run", "normal", "--mesh-size", "3", "--resume", str(out)) == 2
-    err = printed_error(capsys)
+    err = cli_stderr()
     assert "another run" in err and "case" in err, err
     assert main("run", "shear", "--mesh-size", "3", "--transient", "--dt", "1e-9", "--resume", str(out)) == 2
-    assert "time settings" in printed_error(capsys)
+    assert "time settings" in cli_stderr()
     assert sorted(os.listdir(partial)) == ["checkpoint.npz", "run.json"] and not out.exists()
 
 
