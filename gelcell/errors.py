@@ -161,7 +161,6 @@ def install_signal_handlers(signals: typing.Iterable[int] = (signal.SIGINT, sign
     """Inside the block SIGINT and SIGTERM raise :class:`Interrupted`, so that context managers
     (``femtools.io.atomic_directory``) unwind and remove their temporary files."""
     previous = {s: signal.getsignal(s) for s in signals}
-    import gmsh  # noqa: F401  (gmsh 4.8 resets SIGINT to the default action when first imported)
     for s in signals:
         signal.signal(s, _raise_interrupted)
     try:
