@@ -13,7 +13,9 @@ All meshes come from the same gmsh mesh, so the nodes of an interface have
 bit-identical coordinates in the two region meshes that share it.  Surfaces
 are classified with the ``fragment`` output map; curves by the surfaces
 they bound and, for outer boundaries, by their bounding box.  Every boundary
-and interface curve carries exactly one :class:`Tag`.
+and interface curve carries exactly one :class:`Tag`.  The meshed model of a
+built-in device is kept in a disk cache (:mod:`gelcell.meshcache`), so a
+warm run neither imports gmsh nor meshes.
 
 Geometry and refinement are described in ``docs/geometry.md``; every length
 and element size is a field of :class:`gelcell.parameters.CaseParameters`.
@@ -242,6 +244,16 @@ def _mesh_with_gmsh(params: CaseParameters) -> ModelArrays:
         gmsh.finalize()
 
 
+def _device_arrays(params: CaseParameters) -> ModelArrays:
+    """Raw mesh arrays of the device of ``params`` (rank 0): from the mesh cache, else meshed and cached."""
+    from gelcell import meshcache
+    arrays = meshcache.load(params)
+    if arrays is None:
+        arrays = _mesh_with_gmsh(params)
+        meshcache.store(params, arrays)
+    return arrays
+
+
 # --------------------------------------------------------------------------- the device
 def _owned_tag_counts(msh, tags, values) -> dict[str, int]:
     """Global number of entities per tag value, each entity counted once (owned)."""
@@ -376,7 +388,7 @@ def build_device(params: CaseParameters, comm: MPI.Comm = MPI.COMM_WORLD, *,
     arrays, error = None, None
     if comm.rank == 0:
         try:
-            arrays = _mesh_with_gmsh(params)
+            arrays = _device_arrays(params)
         except Exception as exc:       # reported on every rank below
             error = (type(exc).__name__, f"{exc}")
     error = comm.bcast(error, root=0)

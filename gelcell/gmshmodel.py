@@ -1,9 +1,11 @@
 """The gmsh models of the built-in devices (shear, normal): OCC geometry, tags, size fields.
 
 Split from :mod:`gelcell.geometry` so that gmsh (0.45 s to import) is
-imported only when a device is actually meshed.  :func:`build_model` builds
-and meshes the model of a case in the current gmsh session;
-``gelcell.geometry.build_device`` turns it into dolfinx meshes.
+imported only when a device is actually meshed, not on a mesh-cache hit.
+:func:`build_model` builds and meshes the model of a case in the current
+gmsh session; ``gelcell.geometry.build_device`` turns it into dolfinx
+meshes.  The source of this module is part of the mesh cache key
+(``gelcell.meshcache``): editing it invalidates the cached meshes.
 """
 
 from __future__ import annotations
