@@ -1,7 +1,7 @@
 """A disk cache of the meshed built-in devices, so that a warm run neither imports gmsh nor meshes.
 
-Importing gmsh (0.45 s) and meshing a built-in device (0.2-0.3 s) are paid by
-every process otherwise.  An entry holds the raw arrays of the meshed gmsh
+Importing gmsh (0.2-0.5 s: it loads libgmsh) and meshing a built-in device
+(0.1-0.3 s) are paid by every process otherwise.  An entry holds the raw arrays of the meshed gmsh
 model (:class:`femtools.mesh.ModelArrays`), not dolfinx meshes: the meshes
 (and their partition on any number of ranks) are built from them exactly as
 from a fresh gmsh model, so a hit gives the same meshes as a miss.
@@ -14,9 +14,9 @@ from a fresh gmsh model, so a hit gives the same meshes as a miss.
   ``~/.cache/gelcell/meshes``.  ``GELCELL_MESH_CACHE=0`` turns it off.
 * Only the built-in devices (``shear``, ``normal``) are cached: a geometry
   file's content and the options it sets are not part of any key.
-* Size: an entry is a few 100 kB (compressed) at the default sizes; the :data:`MAX_ENTRIES` most
-  recently used entries are kept (a hit touches its entry), so entries of
-  edited code or old parameters do not pile up.
+* Size: an entry is a few 100 kB (compressed) at the default sizes; the
+  :data:`MAX_ENTRIES` most recently used entries are kept (a hit touches its
+  entry), so entries of edited code or old parameters do not pile up.
 
 Only rank 0 calls :func:`load` and :func:`store`.  The cache never fails a run:
 an entry that cannot be read is a miss (and is overwritten), a directory that
@@ -41,7 +41,8 @@ import numpy as np
 from femtools.mesh import ModelArrays
 from gelcell.parameters import CaseParameters
 
-__all__ = ["CACHE_FORMAT", "CACHED_CASES", "MAX_ENTRIES", "cache_dir", "cache_key", "cache_path", "enabled", "load", "store"]
+__all__ = ["CACHE_FORMAT", "CACHED_CASES", "MAX_ENTRIES", "cache_dir", "cache_key", "cache_path", "enabled", "load",
+           "store"]
 
 #: version of the entry layout below; bump it when that changes
 CACHE_FORMAT = 1
