@@ -16,10 +16,12 @@ import numpy as np
 
 from mpi4py import MPI
 
-import gmsh
 from dolfinx import mesh as dmesh
 
+from femtools.gmshimport import import_gmsh
 from femtools.mesh import model_to_mesh
+
+gmsh = import_gmsh()
 
 __all__ = ["INNER", "OUTER", "XAXIS", "YAXIS", "BOUNDARY", "FLAT",
            "LEFT", "RIGHT", "BOTTOM", "TOP", "annulus", "disk", "block", "rectangle"]

@@ -5,21 +5,68 @@ cells, so each field solver gets a mesh built straight from the gmsh model,
 restricted to its physical surface(s).  Nodes on an interface between two
 regions are then bit-identical in both region meshes, which is what the
 interface maps rely on.
+
+The meshes are built from :class:`ModelArrays`, the raw arrays of a meshed
+gmsh model, which can be read once from the model (or from a cache) and
+reused for every region.  gmsh itself (0.45 s to import) is imported only
+where a model is read, through :func:`femtools.gmshimport.import_gmsh`.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import typing
 
 import numpy as np
 
 from mpi4py import MPI
 
+import ufl
 from dolfinx import cpp as _cpp
-from dolfinx.io import gmshio
 from dolfinx.mesh import create_mesh, meshtags_from_entities
 
-__all__ = ["model_to_mesh", "model_to_region_mesh", "connected_components", "PARTITIONER"]
+from femtools.gmshimport import import_gmsh
+
+__all__ = ["model_to_mesh", "model_to_region_mesh", "connected_components", "PARTITIONER", "ModelArrays"]
+
+#: gmsh element type -> (cell shape, degree) of the elements meshes are made of (dolfinx.io.gmshio's table)
+_GMSH_CELLS = {1: ("interval", 1), 2: ("triangle", 1), 3: ("quadrilateral", 1), 4: ("tetrahedron", 1),
+               5: ("hexahedron", 1), 8: ("interval", 2), 9: ("triangle", 2), 10: ("quadrilateral", 2),
+               11: ("tetrahedron", 2), 12: ("hexahedron", 2)}
+
+
+@dataclasses.dataclass
+class ModelArrays:
+    """The raw arrays of a meshed gmsh model that dolfinx meshes are built from.
+
+    ``x``: node coordinates ``(n, 3)``; per gmsh element type ``k``:
+    ``topology[k]`` (zero-based node numbers, one row per element),
+    ``markers[k]`` (physical tag of each element) and ``dims[k]`` (its
+    topological dimension).  Only elements of physical groups are kept.
+    """
+
+    x: np.ndarray
+    topology: dict[int, np.ndarray]
+    markers: dict[int, np.ndarray]
+    dims: dict[int, int]
+
+    @classmethod
+    def from_model(cls, model) -> "ModelArrays":
+        """Read the arrays of the current mesh of the gmsh ``model`` (e.g. ``gmsh.model``)."""
+        import_gmsh()                # before gmshio, whose import imports gmsh
+        from dolfinx.io import gmshio
+        topo = gmshio.extract_topology_and_markers(model)
+        return cls(x=gmshio.extract_geometry(model),
+                   topology={int(k): v["topology"] for k, v in topo.items()},
+                   markers={int(k): v["cell_data"] for k, v in topo.items()},
+                   dims={int(k): int(model.mesh.getElementProperties(k)[1]) for k in topo})
+
+
+def _ufl_mesh(gmsh_type: int, gdim: int) -> ufl.Mesh:
+    """The ufl mesh of elements of gmsh type ``gmsh_type`` (as ``dolfinx.io.gmshio.ufl_mesh``, without gmsh)."""
+    shape, degree = _GMSH_CELLS[gmsh_type]
+    cell = ufl.Cell(shape, geometric_dimension=gdim)
+    return ufl.Mesh(ufl.VectorElement(ufl.FiniteElement("Lagrange", cell, degree, variant="equispaced")))
 
 
 def _band_partition(comm: MPI.Comm, nparts: int, graph, ghosting: bool):
@@ -60,15 +107,17 @@ PARTITIONER = _cpp.mesh.create_cell_partitioner(_band_partition)
 
 
 def _model_mesh(model, comm: MPI.Comm, rank: int, region_tags, gdim: int):
-    """Mesh of the cells with physical tags ``region_tags`` (all cells if None): (mesh, cell_tags, facet_tags)."""
+    """Mesh of the cells with physical tags ``region_tags`` (all cells if None): (mesh, cell_tags, facet_tags).
+
+    ``model`` (used on rank ``rank`` only) is a gmsh model or its :class:`ModelArrays`.
+    """
     if comm.rank == rank:
-        x = gmshio.extract_geometry(model)
-        topo = gmshio.extract_topology_and_markers(model)
-        info = {k: model.mesh.getElementProperties(k) for k in topo}
-        cell_id = max(topo, key=lambda k: info[k][1])
-        tdim = info[cell_id][1]
-        facet_ids = [k for k in topo if info[k][1] == tdim - 1]
-        cells, cvals = topo[cell_id]["topology"], topo[cell_id]["cell_data"].astype(np.int32)
+        data = model if isinstance(model, ModelArrays) else ModelArrays.from_model(model)
+        x, dims = data.x, data.dims
+        cell_id = max(data.topology, key=lambda k: dims[k])
+        tdim = dims[cell_id]
+        facet_ids = [k for k in data.topology if dims[k] == tdim - 1]
+        cells, cvals = data.topology[cell_id], data.markers[cell_id].astype(np.int32)
         if region_tags is not None:
             keep = np.isin(cvals, region_tags)
             cells, cvals = cells[keep], cvals[keep]
@@ -79,7 +128,7 @@ def _model_mesh(model, comm: MPI.Comm, rank: int, region_tags, gdim: int):
         new[used] = np.arange(used.size)
         cells, x = new[cells], x[used]
         if facet_ids:
-            f, fv = topo[facet_ids[0]]["topology"], topo[facet_ids[0]]["cell_data"]
+            f, fv = data.topology[facet_ids[0]], data.markers[facet_ids[0]]
             keep = np.all(new[f] >= 0, axis=1)
             facets, fvals = new[f[keep]], fv[keep].astype(np.int32)
         else:
@@ -91,9 +140,9 @@ def _model_mesh(model, comm: MPI.Comm, rank: int, region_tags, gdim: int):
         facets, fvals = np.empty((0, nf), np.int64), np.empty(0, np.int32)
         meta = (cell_id, nn, nf)
     cell_id, nn, nf = meta
-    domain = gmshio.ufl_mesh(cell_id, gdim)
+    domain = _ufl_mesh(cell_id, gdim)
     ctype = _cpp.mesh.to_type(str(domain.ufl_cell()))
-    cells = cells[:, gmshio.cell_perm_array(ctype, nn)]
+    cells = cells[:, _cpp.io.perm_gmsh(ctype, nn)]
     msh = create_mesh(comm, cells, x[:, :gdim], domain, partitioner=PARTITIONER)
     tdim = msh.topology.dim
 
@@ -106,20 +155,20 @@ def _model_mesh(model, comm: MPI.Comm, rank: int, region_tags, gdim: int):
 
     cell_tags = tags(tdim, cells, cvals, "cell_tags")
     ftype = _cpp.mesh.cell_entity_type(ctype, tdim - 1, 0)
-    facets = facets[:, gmshio.cell_perm_array(ftype, nf)]
+    facets = facets[:, _cpp.io.perm_gmsh(ftype, nf)]
     msh.topology.create_connectivity(tdim - 1, tdim)
     facet_tags = tags(tdim - 1, facets, fvals, "facet_tags")
     return msh, cell_tags, facet_tags
 
 
 def model_to_mesh(model, comm: MPI.Comm, rank: int = 0, gdim: int = 2):
-    """Whole gmsh model as one dolfinx mesh: ``(mesh, cell_tags, facet_tags)``."""
+    """Whole gmsh model (or its :class:`ModelArrays`) as one dolfinx mesh: ``(mesh, cell_tags, facet_tags)``."""
     return _model_mesh(model, comm, rank, None, gdim)
 
 
 def model_to_region_mesh(model, comm: MPI.Comm, rank: int, region_tags: typing.Iterable[int],
                          gdim: int = 2, with_cell_tags: bool = False):
-    """Mesh of the cells of the physical surfaces ``region_tags`` only.
+    """Mesh of the cells of the physical surfaces ``region_tags`` only (``model``: gmsh model or :class:`ModelArrays`).
 
     Returns ``(mesh, facet_tags)`` (``(mesh, cell_tags, facet_tags)`` with
     ``with_cell_tags``).  The facet tags keep every tagged facet of the gmsh

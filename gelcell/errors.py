@@ -159,9 +159,11 @@ def _raise_interrupted(signum, frame):
 @contextlib.contextmanager
 def install_signal_handlers(signals: typing.Iterable[int] = (signal.SIGINT, signal.SIGTERM)):
     """Inside the block SIGINT and SIGTERM raise :class:`Interrupted`, so that context managers
-    (``femtools.io.atomic_directory``) unwind and remove their temporary files."""
+    (``femtools.io.atomic_directory``) unwind and remove their temporary files.
+
+    gmsh, which resets SIGINT, is imported later if at all (not on a mesh-cache hit), always
+    through ``femtools.gmshimport.import_gmsh``, which keeps these handlers."""
     previous = {s: signal.getsignal(s) for s in signals}
-    import gmsh  # noqa: F401  (gmsh 4.8 resets SIGINT to the default action when first imported)
     for s in signals:
         signal.signal(s, _raise_interrupted)
     try:

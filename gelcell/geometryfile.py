@@ -32,6 +32,7 @@ import re
 
 import numpy as np
 
+from femtools.gmshimport import import_gmsh
 from gelcell.parameters import ParameterError
 
 __all__ = ["read_geometry", "file_layout", "build_file_model", "GeometryInfo", "SUFFIXES"]
@@ -75,7 +76,7 @@ def _key(path: str):
 def _samples(curve: int, n: int = 64, from_mesh: bool = False) -> np.ndarray:
     """Points along a curve in order: from its parametrisation, or (``from_mesh``, a .msh file's
     discrete curve) its mesh nodes ordered by walking its line elements."""
-    import gmsh
+    gmsh = import_gmsh()
     if not from_mesh:
         lo, hi = gmsh.model.getParametrizationBounds(1, curve)
         t = np.linspace(lo[0], hi[0], n)
@@ -113,7 +114,7 @@ def _samples(curve: int, n: int = 64, from_mesh: bool = False) -> np.ndarray:
 
 def _loops(surface: int, points: dict) -> list:
     """Closed boundary loops of a surface as point arrays (curves chained by their end points)."""
-    import gmsh
+    gmsh = import_gmsh()
     pieces = []
     for _, c in gmsh.model.getBoundary([(2, surface)], combined=False, oriented=False):
         pieces.append(points[abs(c)])
@@ -140,7 +141,7 @@ def _loops(surface: int, points: dict) -> list:
 
 
 def _read_with_gmsh(path: str) -> GeometryInfo:
-    import gmsh
+    gmsh = import_gmsh()
     gmsh.initialize(readConfigFiles=False)
     try:
         gmsh.option.setNumber("General.Terminal", 0)
@@ -698,7 +699,7 @@ def file_layout(params):
 
 def build_file_model(params) -> None:
     """Load the file into the current gmsh session (rank 0), tag it with gelcell's tags, mesh it (P2)."""
-    import gmsh
+    gmsh = import_gmsh()
     path = os.path.abspath(params.geometry.file)
     fl = analyse(path)
     gmsh.open(path)
@@ -754,7 +755,7 @@ def export_builtin(params, path: str) -> None:
     Loading it with ``--geometry`` gives the same mesh, hence the built-in
     device's results; it is also a starting point for a device of one's own.
     """
-    import gmsh
+    gmsh = import_gmsh()
     from gelcell.geometry import _build_model
     if params.case == "file":
         raise ParameterError("export_builtin: the case is already a geometry file")

@@ -1,0 +1,29 @@
+"""The one way gelcell imports gmsh: lazily, and without losing the SIGINT handler.
+
+gmsh 4.8's module sets SIGINT to the default action when first imported
+(``oldsig = signal.signal(SIGINT, SIG_DFL)``) and puts ``oldsig`` back in
+``gmsh.finalize()``.  gmsh is imported only where a model is built or read
+(0.45 s: it loads libgmsh), long after the CLI installed its handlers, so
+both the import and a later ``finalize`` would drop the CLI's Ctrl-C
+handling.  This module imports nothing heavy, so light modules can use it.
+"""
+
+from __future__ import annotations
+
+import signal
+
+__all__ = ["import_gmsh"]
+
+
+def import_gmsh():
+    """The gmsh module, with the SIGINT handler in place now kept through the import and the next finalize.
+
+    Call it right before ``gmsh.initialize()`` (it is cheap once gmsh is loaded).
+    """
+    handler = signal.getsignal(signal.SIGINT)
+    import gmsh
+    if handler is not None:          # None: a handler not installed from Python, nothing to keep
+        if signal.getsignal(signal.SIGINT) is not handler:
+            signal.signal(signal.SIGINT, handler)
+        gmsh.oldsig = handler
+    return gmsh
