@@ -220,12 +220,59 @@ def print_tables(sizes_rows: list[dict], iteration_rows: list[dict], ranks: int)
               f"{1e3 * r['solves_total'] / r['iterations']:.0f} ms |")
 
 
+# -- fixed costs of `gelcell run shear` ------------------------------------------------------------
+def _wall(cmd: list[str], timeout: float) -> float:
+    t0 = time.perf_counter()
+    subprocess.run(cmd, cwd=ROOT, env=dict(os.environ, MPLBACKEND="Agg"), stdout=subprocess.DEVNULL,
+                   stderr=subprocess.DEVNULL, check=True, timeout=timeout)
+    return time.perf_counter() - t0
+
+
+def measure_fixed_costs(repeats: int, timeout: float) -> dict:
+    """Median process walls of the phases of ``gelcell run shear`` (warm caches: one run first).
+
+    interpreter (``python -c pass``), imports of the run path, the run without figures and the
+    whole run; setup (meshing, forms, matrices) and the solves from the run's summary.json.
+    """
+    import tempfile
+    py = sys.executable
+    with tempfile.TemporaryDirectory() as tmp:
+        out = os.path.join(tmp, "run")
+        run = [py, "-m", "gelcell.cli", "run", "shear", "--quiet", "--out", out]
+        _wall(run, timeout)                                  # warm the FFCx and mesh caches
+        walls = {"interpreter": [], "imports": [], "run_no_figures": [], "run": []}
+        timing = []
+        for _ in range(repeats):
+            walls["interpreter"].append(_wall([py, "-c", "pass"], timeout))
+            walls["imports"].append(_wall([py, "-c", "import gelcell.cli, gelcell.runner"], timeout))
+            walls["run_no_figures"].append(_wall(run + ["--no-figures"], timeout))
+            walls["run"].append(_wall(run, timeout))
+            with open(os.path.join(out, "summary.json")) as fh:
+                timing.append(json.load(fh)["timing"])
+    med = {k: float(np.median(v)) for k, v in walls.items()}
+    med["setup"] = float(np.median([t["setup"] for t in timing]))
+    med["solves"] = float(np.median([t["coupling"] for t in timing]))
+    return med
+
+
+def print_fixed_costs(c: dict) -> None:
+    print("\nFixed costs of `gelcell run shear` (default mesh, warm caches; median process walls, s)")
+    print("\n| python start | imports of the run path | setup (meshing, forms, matrices) | solves "
+          "| results, checks, XDMF, profiles | figures | whole run |")
+    print("|---:|---:|---:|---:|---:|---:|---:|")
+    rest = c["run_no_figures"] - c["imports"] - c["setup"] - c["solves"]
+    print(f"| {c['interpreter']:.2f} | {c['imports'] - c['interpreter']:.2f} | {c['setup']:.2f} | {c['solves']:.2f} "
+          f"| {rest:.2f} | {c['run'] - c['run_no_figures']:.2f} | {c['run']:.2f} |")
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sizes", nargs="+", type=float, default=[1.0, 0.5, 0.25])
     parser.add_argument("--ranks", type=int, default=1, help="MPI ranks of every measured run")
     parser.add_argument("--no-monolithic", action="store_true", help="skip the monolithic solves")
     parser.add_argument("--no-iterations", action="store_true", help="skip the iteration table")
+    parser.add_argument("--fixed-costs", type=int, default=3, metavar="N",
+                        help="repeats of the fixed-cost phases of `gelcell run shear` (0: skip)")
     parser.add_argument("--timeout", type=float, default=1800.0, help="seconds allowed to each run")
     parser.add_argument("--json", help="write every measurement as JSON")
     # a single measurement (used by the driver)
@@ -254,10 +301,14 @@ def main(argv=None) -> int:
         for name, moduli in STIFFNESS_CASES:
             r = run_child("partitioned", 1.0, args.ranks, args.timeout, **moduli)
             iteration_rows.append({"case": name, **r})
+    fixed = measure_fixed_costs(args.fixed_costs, args.timeout) if args.fixed_costs > 0 and args.ranks == 1 else None
     print_tables(sizes_rows, iteration_rows, args.ranks)
+    if fixed is not None:
+        print_fixed_costs(fixed)
     if args.json:
         with open(args.json, "w") as fh:
-            json.dump({"ranks": args.ranks, "sizes": sizes_rows, "iterations": iteration_rows}, fh, indent=2)
+            json.dump({"ranks": args.ranks, "sizes": sizes_rows, "iterations": iteration_rows, "fixed_costs": fixed},
+                      fh, indent=2)
     return 0
 
 

@@ -46,7 +46,7 @@ def _streamlines(ax, tri, vx, vy):
     ny = max(20, int(nx * (ymax - ymin) / (xmax - xmin)))
     gx, gy = np.meshgrid(np.linspace(xmin, xmax, nx), np.linspace(ymin, ymax, ny))
     ix, iy = mtri.LinearTriInterpolator(tri, vx)(gx, gy), mtri.LinearTriInterpolator(tri, vy)(gx, gy)
-    u, v = np.ma.filled(ix, np.nan), np.ma.filled(iy, np.nan)
+    u, v = np.ma.filled(ix, 0.0), np.ma.filled(iy, 0.0)
     ax.streamplot(gx, gy, u, v, color="w", linewidth=0.6, density=1.2, arrowsize=0.6)
 
 
