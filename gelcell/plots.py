@@ -1,272 +1,147 @@
-"""Figures of a device run (PNG, matplotlib Agg), drawn on rank 0 from gathered data.
+"""Figures of a device run: the fields gathered on rank 0, drawn by ``gelcell.figures``.
 
-Coordinates are in units of L0; field values in SI-derived units (µm/s, µm,
-mPa) so that a bioengineer reads them directly.
+``figure_data`` gathers everything a figure shows into plain arrays (a
+collective call); ``draw_figures`` draws them in this process.  A serial run
+may instead hand them to a :class:`FigureWorker`: a separate Python process
+started before the solve, which imports matplotlib while the run solves and
+draws while the run writes its other files (XDMF, profiles, records).
 """
 
 from __future__ import annotations
 
+import json
 import os
+import pickle
+import signal
+import subprocess
+import sys
+import threading
+import types
 
-import numpy as np
+from gelcell.output import DerivedFields, P1Gather
+from gelcell.results import DeviceFields
 
-import matplotlib
+__all__ = ["draw_figures", "draw_transient_figures", "figure_data", "plot_profiles", "FigureWorker",
+           "FigureWorkerError"]
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import matplotlib.tri as mtri  # noqa: E402
-
-import ufl  # noqa: E402
-
-from gelcell.output import DerivedFields, P1Gather  # noqa: E402
-from gelcell.results import DeviceFields  # noqa: E402
-
-__all__ = ["draw_figures", "plot_profiles"]
-
-
-def _triangulation(data):
-    X, T, _ = data
-    return mtri.Triangulation(X[:, 0], X[:, 1], T)
+#: the package's parent directory, so that the worker imports this very gelcell
+_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def _field_panel(ax, data, values, label, cmap="viridis"):
-    tri = _triangulation(data)
-    m = ax.tripcolor(tri, values, shading="gouraud", cmap=cmap)
-    plt.colorbar(m, ax=ax, label=label, shrink=0.8)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x / L0")
-    ax.set_ylabel("y / L0")
-    return tri
-
-
-def _streamlines(ax, tri, vx, vy):
-    xmin, xmax = tri.x.min(), tri.x.max()
-    ymin, ymax = tri.y.min(), tri.y.max()
-    nx = 200
-    ny = max(20, int(nx * (ymax - ymin) / (xmax - xmin)))
-    gx, gy = np.meshgrid(np.linspace(xmin, xmax, nx), np.linspace(ymin, ymax, ny))
-    ix, iy = mtri.LinearTriInterpolator(tri, vx)(gx, gy), mtri.LinearTriInterpolator(tri, vy)(gx, gy)
-    u, v = np.ma.filled(ix, 0.0), np.ma.filled(iy, 0.0)
-    ax.streamplot(gx, gy, u, v, color="w", linewidth=0.6, density=1.2, arrowsize=0.6)
-
-
-#: resolution of the figures, and the margin left around what is drawn (as savefig's pad_inches)
-_DPI = 150
-_PAD_INCHES = 0.1
-
-
-def write_png(fig, path: str) -> None:
-    """Render ``fig`` once and write it as a PNG cropped to what is drawn.
-
-    The crop replaces ``bbox_inches="tight"``, which lays the figure out and
-    draws it twice (a second for each figure); trimming white rows and
-    columns of the one rendering gives the same picture.  zlib level 1:
-    the pixels are the same, the encoding takes a quarter of the time.
-    """
-    from PIL import Image
-    fig.set_dpi(_DPI)
-    fig.canvas.draw()
-    rgba = np.asarray(fig.canvas.buffer_rgba())
-    drawn = np.any(rgba != 255, axis=2)
-    rows, cols = np.flatnonzero(drawn.any(axis=1)), np.flatnonzero(drawn.any(axis=0))
-    if rows.size:
-        pad = int(round(_PAD_INCHES * _DPI))
-        r0, r1 = max(rows[0] - pad, 0), min(rows[-1] + 1 + pad, rgba.shape[0])
-        c0, c1 = max(cols[0] - pad, 0), min(cols[-1] + 1 + pad, rgba.shape[1])
-        rgba = rgba[r0:r1, c0:c1]
-    Image.fromarray(np.ascontiguousarray(rgba), "RGBA").save(path, format="png", compress_level=1,
-                                                             dpi=(_DPI, _DPI))
-
-
-def _save(fig, directory, name, written):
-    path = os.path.join(directory, name)
-    write_png(fig, path)
-    plt.close(fig)
-    written.append(name)
-
-
+# gelcell.figures imports matplotlib (~0.5 s): only where a figure is drawn in this process
 def plot_profiles(path: str, profiles: dict, params, overlay: dict | None = None,
                   labels: tuple[str, str] = ("with cell", "without cell")) -> None:
-    """The four Gamma1 profiles v_fx, v_fy, u_sx, u_sy against the undeformed coordinate."""
-    V = params.to_report(1.0, "velocity")
-    L = params.to_report(1.0, "length")
-    along = "X" if np.ptp(profiles["X"]) >= np.ptp(profiles["Y"]) else "Y"
-    fig, axes = plt.subplots(2, 2, figsize=(10, 6), sharex=True)
-    spec = [("v_fx", V, "v_f,x [µm/s]"), ("v_fy", V, "v_f,y [µm/s]"),
-            ("u_sx", L, "u_s,x [µm]"), ("u_sy", L, "u_s,y [µm]")]
-    for ax, (key, factor, label) in zip(axes.ravel(), spec):
-        ax.plot(profiles[along], factor * profiles[key], "-", label=labels[0])
-        if overlay is not None:
-            ax.plot(overlay[along], factor * overlay[key], "--", label=labels[1])
-        ax.set_ylabel(label)
-        ax.grid(alpha=0.3)
-    for ax in axes[1]:
-        ax.set_xlabel(f"{along} / L0 along Γ1")
-    if overlay is not None:
-        axes[0, 0].legend()
-    fig.suptitle(f"{params.label}: profiles along Γ1")
-    write_png(fig, path)
-    plt.close(fig)
+    """The four Gamma1 profiles v_fx, v_fy, u_sx, u_sy of ``params``'s device against the undeformed coordinate."""
+    from gelcell.figures import profiles_figure
+    profiles_figure(path, profiles, params.to_report(1.0, "velocity"), params.to_report(1.0, "length"),
+                    params.label, overlay, labels)
 
 
-def _mark_cells(ax, specs) -> None:
-    """Outline and (several cells) label every cell on a field panel."""
-    t = np.linspace(0, 2 * np.pi, 100)
-    for spec in specs:
-        centre, r = np.asarray(spec.centre), 0.5 * spec.diameter
-        ax.plot(centre[0] + r * np.cos(t), centre[1] + r * np.sin(t), "w-", lw=0.6)
-        if len(specs) > 1:
-            ax.annotate(spec.name.replace("cell_", "c"), centre + np.array([0, 1.3 * r]), ha="center",
-                        fontsize=6, color="w")
+def figure_data(fields: DeviceFields, profiles: dict, summary: dict, overlay: dict | None = None,
+                derived: DerivedFields | None = None) -> dict | None:
+    """Everything the figures of a run show, as plain arrays and numbers on rank 0 (None elsewhere).
+
+    Collective.  The fields are interpolated into P1 and gathered; the cells are
+    described by name, centre and diameter only, so the data can be pickled
+    and drawn by a process that has neither dolfinx nor MPI.
+    """
+    p = fields.params
+    derived = derived or DerivedFields(fields)
+    gel = derived.gel
+    on_gel = P1Gather(fields.gel_mesh).gather
+    data = {"speed": on_gel(gel["v_f"]), "pressure": on_gel(gel["p"]), "disp": on_gel(gel["u_s"]),
+            "vm": on_gel(gel["von_mises_network"]),
+            "parts": {k: on_gel(gel[f"von_mises_{k}_part"]) for k in ("pressure", "brinkman", "network", "total")},
+            "cell": None}
+    if fields.cell_displacement is not None:
+        data["cell"] = P1Gather(fields.cell_mesh).gather(derived.cell["u_c"])
+    if fields.comm.rank != 0:
+        return None
+    data.update(
+        V=p.to_report(1.0, "velocity"), L=p.to_report(1.0, "length"), S=p.to_report(1.0, "stress"),
+        label=p.label, wide=bool(fields.layout.wide), profiles=profiles["Gamma1"], overlay=overlay,
+        cells=[types.SimpleNamespace(name=c.name, centre=tuple(float(v) for v in c.centre),
+                                     diameter=float(c.diameter)) for c in fields.cells],
+        cells_summary=summary.get("cells") or [{"centroid_displacement": summary["cell.centroid_displacement"]}])
+    return data
 
 
 def draw_figures(directory: str, fields: DeviceFields, profiles: dict, summary: dict,
                  overlay: dict | None = None, derived: DerivedFields | None = None) -> list[str]:
-    """Draw every figure of a run into ``directory``; returns the file names (rank 0)."""
-    p = fields.params
-    comm = fields.comm
-    V, L, S = p.to_report(1.0, "velocity"), p.to_report(1.0, "length"), p.to_report(1.0, "stress")
-    derived = derived or DerivedFields(fields)
-    gel = derived.gel
-    on_gel = P1Gather(fields.gel_mesh).gather
-    speed = on_gel(gel["v_f"])
-    pressure = on_gel(gel["p"])
-    disp = on_gel(gel["u_s"])
-    vm = on_gel(gel["von_mises_network"])
-    parts = {k: on_gel(gel[f"von_mises_{k}_part"]) for k in ("pressure", "brinkman", "network", "total")}
-    cell = None
-    if fields.cell_displacement is not None:
-        cell = P1Gather(fields.cell_mesh).gather(derived.cell["u_c"])
-    written: list[str] = []
-    if comm.rank != 0:
-        return written
-    wide = fields.layout.wide
-    size = (11, 3.2) if wide else (8, 4)
-
-    fig, ax = plt.subplots(figsize=size)
-    vals = speed[2]
-    tri = _field_panel(ax, speed, V * np.linalg.norm(vals, axis=1), "|v_f| [µm/s]")
-    _streamlines(ax, tri, vals[:, 0], vals[:, 1])
-    _mark_cells(ax, fields.cells)
-    ax.set_title("interstitial velocity in the gel")
-    _save(fig, directory, "gel_velocity.png", written)
-
-    fig, ax = plt.subplots(figsize=size)
-    _field_panel(ax, pressure, S * pressure[2], "p [mPa]", cmap="coolwarm")
-    ax.set_title("pore pressure in the gel")
-    _save(fig, directory, "gel_pressure.png", written)
-
-    fig, axes = plt.subplots(2, 1, figsize=(size[0], 2 * size[1]))
-    _field_panel(axes[0], disp, L * np.linalg.norm(disp[2], axis=1), "|u_s| [µm]")
-    axes[0].set_title("network displacement")
-    _field_panel(axes[1], vm, S * vm[2], "von Mises of σ_s [mPa]", cmap="magma")
-    for ax in axes:
-        _mark_cells(ax, fields.cells)
-    axes[1].set_title("von Mises stress of the network")
-    _save(fig, directory, "gel_displacement_von_mises.png", written)
-
-    plot_profiles(os.path.join(directory, "gamma1_profiles.png"), profiles["Gamma1"], p, overlay)
-    written.append("gamma1_profiles.png")
-
-    if cell is not None:
-        specs = fields.cells
-        X, _, U = cell
-        t = np.linspace(0, 2 * np.pi, 200)
-        fig, ax = plt.subplots(figsize=(5, 5) if len(specs) == 1 else (8, 5))
-        # each cell's displacement relative to its own centroid, each cell outlined and labelled
-        cells_summary = summary.get("cells") or [{"centroid_displacement": summary["cell.centroid_displacement"]}]
-        for spec, cs in zip(specs, cells_summary):
-            centre, r = np.asarray(spec.centre), 0.5 * spec.diameter
-            mine = np.linalg.norm(X - centre, axis=1) <= r * (1 + 1e-6)
-            rel = U[mine] - np.asarray(cs["centroid_displacement"])
-            ax.quiver(X[mine, 0], X[mine, 1], L * rel[:, 0], L * rel[:, 1], angles="xy")
-            ax.plot(centre[0] + r * np.cos(t), centre[1] + r * np.sin(t), "k-", lw=0.5)
-            if len(specs) > 1:
-                ax.annotate(spec.name, centre + np.array([0, 1.15 * r]), ha="center", fontsize=8)
-        ax.set_aspect("equal")
-        ax.set_xlabel("x / L0")
-        ax.set_ylabel("y / L0")
-        ax.set_title("cell displacement relative to its centroid [µm, arrows not to scale]")
-        _save(fig, directory, "cell_displacement.png", written)
-
-        for spec in specs:
-            centre, r = np.asarray(spec.centre), 0.5 * spec.diameter
-            fig, axes = plt.subplots(2, 2, figsize=(9, 8))
-            for ax, (key, data) in zip(axes.ravel(), parts.items()):
-                # draw only the triangles that reach into the window; the colour scale still spans every
-                # vertex value (tripcolor scales by the value array, which stays whole)
-                X, T, values = data
-                lo, hi = centre - 4 * r, centre + 4 * r
-                corners = X[T]
-                inside = np.all((corners.max(axis=1) >= lo) & (corners.min(axis=1) <= hi), axis=1)
-                _field_panel(ax, (X, T[inside], values), S * values, "von Mises [mPa]", cmap="magma")
-                ax.set_xlim(centre[0] - 4 * r, centre[0] + 4 * r)
-                ax.set_ylim(centre[1] - 4 * r, centre[1] + 4 * r)
-                for other in specs:
-                    c2, r2 = np.asarray(other.centre), 0.5 * other.diameter
-                    ax.plot(c2[0] + r2 * np.cos(t), c2[1] + r2 * np.sin(t), "w-", lw=0.8)
-                ax.set_title({"pressure": "pressure  −p I", "brinkman": "Brinkman  φ_f σ_f",
-                              "network": "network  φ_s σ_s", "total": "total"}[key])
-            fig.suptitle("stress parts in the gel around the cell (von Mises)" if len(specs) == 1 else
-                         f"stress parts in the gel around {spec.name} (von Mises)")
-            fig.subplots_adjust(wspace=0.5, hspace=0.35)
-            _save(fig, directory, "cell_traction_parts.png" if len(specs) == 1
-                  else f"{spec.name}_traction_parts.png", written)
-    return written
+    """Draw every figure of a run into ``directory`` in this process; returns the file names (rank 0)."""
+    from gelcell.figures import render_device_figures
+    data = figure_data(fields, profiles, summary, overlay, derived)
+    return [] if data is None else render_device_figures(directory, data)
 
 
 def draw_transient_figures(directory: str, rows: list[dict], summary: dict, params, comm) -> list[str]:
-    """trajectory.png (centroid x and y against t, y on its own axis, steady values marked) and
-    iterations.png (coupling iterations per window); rank 0 draws, returns the file names."""
-    if comm.rank != 0:
-        return []
-    written: list[str] = []
-    t = np.array([r["t"] for r in rows])
-    seconds = params.to_si(t, "time")
-    L = params.to_report(1.0, "length")
-    tr = summary["transient"]
-    fig, ax = plt.subplots(figsize=(8, 4.5))
-    if params.with_cell:
-        x = L * np.array([r["centroid_x"] for r in rows])
-        y = L * np.array([r["centroid_y"] for r in rows])
-        n_cells = sum(1 for k in rows[-1] if k.startswith("cell_") and k.endswith("_centroid_x"))
-        if n_cells > 1:       # several cells: each one's x, the extremes' curve dashed
-            for k in range(1, n_cells + 1):
-                ax.plot(seconds, L * np.array([r.get(f"cell_{k}_centroid_x", np.nan) for r in rows]), "-",
-                        lw=0.9, label=f"cell_{k} x")
-        ax.plot(seconds, x, "C0-" if n_cells <= 1 else "k--", label="centroid x" if n_cells <= 1 else
-                "x of the cell that moves most")
-        ax.axhline(x[-1], color="C0", ls=":", lw=0.8, label=f"final x {x[-1]:.4g} µm")
-        ax.set_ylabel("centroid displacement x [µm]", color="C0")
-        if np.any(y != 0):
-            # the much smaller y motion on its own axis (zero by symmetry in the normal-flow device)
-            ay = ax.twinx()
-            ay.plot(seconds, y, "C3-", label="centroid y")
-            ay.axhline(y[-1], color="C3", ls=":", lw=0.8)
-            ay.set_ylabel("centroid displacement y [µm]", color="C3")
-        for q, style in (("t50", "--"), ("t90", "-."), ("t99", ":")):
-            if tr.get(q) is not None:
-                ax.axvline(params.to_si(tr[q], "time"), color="grey", ls=style, lw=0.8, label=q)
-        ax.set_title(f"{params.label}: the cell's centroid from rest" if n_cells <= 1 else
-                     f"{params.label}: the cells' centroids from rest")
-    else:
-        u = L * np.array([r["max_network_displacement"] for r in rows])
-        ax.plot(seconds, u, "C0-", label="max |u_s|")
-        ax.axhline(u[-1], color="C0", ls=":", lw=0.8)
-        ax.set_ylabel("max |u_s| [µm]")
-        ax.set_title(f"{params.label} without a cell: the network from rest")
-    ax.set_xlabel("t [s]")
-    ax.grid(alpha=0.3)
-    ax.legend(loc="lower right", fontsize=8)
-    _save(fig, directory, "trajectory.png", written)
+    """trajectory.png and iterations.png of a time-dependent run (``gelcell.figures``); rank 0 draws."""
+    from gelcell.figures import draw_transient_figures as draw
+    return draw(directory, rows, summary, params, comm)
 
-    fig, ax = plt.subplots(figsize=(8, 3.5))
-    its = [r["iterations"] for r in rows[1:]]
-    ax.bar(np.arange(1, len(its) + 1), its, width=1.0, color="C0")
-    ax.set_xlabel("time window")
-    ax.set_ylabel("iterations")
-    mean = tr.get("iterations_mean")
-    ax.set_title(f"iterations per window (mean {mean:.2f})" if mean is not None else "iterations per window")
-    ax.grid(alpha=0.3, axis="y")
-    _save(fig, directory, "iterations.png", written)
-    return written
+
+class FigureWorkerError(RuntimeError):
+    """The figure worker process failed (its last line of stderr is the message)."""
+
+
+class FigureWorker:
+    """A Python process that draws one run's figures (``python -m gelcell.figures``).
+
+    Start it before the solve: it imports matplotlib (~0.5 s) on the other
+    core meanwhile.  ``submit(directory, data)`` sends the data of
+    :func:`figure_data`; ``result()`` waits for the file names.  For serial
+    runs only: under MPI both cores already solve.  ``GELCELL_FIGURE_WORKER=0``
+    turns it off (see :func:`use_worker`).
+    """
+
+    def __init__(self):
+        env = dict(os.environ, MPLBACKEND="Agg",
+                   PYTHONPATH=os.pathsep.join(filter(None, [_ROOT, os.environ.get("PYTHONPATH")])))
+        self.proc = subprocess.Popen([sys.executable, "-m", "gelcell.figures"], stdin=subprocess.PIPE,
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+
+    def submit(self, directory: str, data: dict) -> None:
+        stdin, self.proc.stdin = self.proc.stdin, None     # sent whole: communicate() must not flush it
+        # PETSc's signal handler aborts the run on SIGPIPE: a worker that died must give EPIPE instead
+        signal.signal(signal.SIGPIPE, signal.SIG_IGN)
+        try:
+            pickle.dump((directory, data), stdin, protocol=pickle.HIGHEST_PROTOCOL)
+        except OSError:                 # the worker is gone; result() reports why
+            pass
+        finally:
+            try:
+                stdin.close()
+            except OSError:
+                pass
+
+    def result(self, timeout: float = 600.0) -> list[str]:
+        """The names of the figures written; FigureWorkerError if the worker failed or timed out."""
+        try:
+            out, err = self.proc.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            self.close()
+            raise FigureWorkerError(f"the figure worker did not finish within {timeout:.0f} s") from None
+        if self.proc.returncode != 0:
+            lines = err.decode(errors="replace").strip().splitlines()
+            raise FigureWorkerError(f"the figure worker failed (exit {self.proc.returncode}): "
+                                    f"{lines[-1] if lines else 'no message'}")
+        try:
+            names = json.loads(out.decode().strip().splitlines()[-1])
+        except (ValueError, IndexError):
+            raise FigureWorkerError("the figure worker returned no file names") from None
+        return [str(n) for n in names]
+
+    def close(self) -> None:
+        """Stop the worker if it still runs (an interrupted or failed run)."""
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.wait()
+        for stream in (self.proc.stdin, self.proc.stdout, self.proc.stderr):
+            if stream is not None and not stream.closed:
+                stream.close()
+
+    @staticmethod
+    def use_worker(comm) -> bool:
+        """A worker for serial runs from the main thread (it sets a signal) unless ``GELCELL_FIGURE_WORKER=0``."""
+        return (comm.size == 1 and threading.current_thread() is threading.main_thread()
+                and os.environ.get("GELCELL_FIGURE_WORKER", "1").strip() != "0")

@@ -25,6 +25,7 @@ from gelcell.geometry import build_device
 from gelcell.monolithic import MonolithicCoefficients, MonolithicSolver
 from gelcell.output import DerivedFields, write_fields, write_json_file, write_profiles
 from gelcell.parameters import CaseParameters, ParameterError
+from gelcell.plots import FigureWorker, FigureWorkerError, figure_data
 from gelcell.results import DeviceFields, fields_from_device, fields_from_monolithic, summarize
 from gelcell.validity import check_case, model_warnings
 
@@ -339,6 +340,47 @@ def format_summary(summary: dict) -> str:
     return "\n".join(lines)
 
 
+def _write_outputs(tmp: str, run: CaseRun, summary: dict, comm, *, monolithic: bool, figures: bool, fields: bool,
+                   overlay_profiles: dict | None, extra_json: dict | None, worker: FigureWorker | None) -> list[str]:
+    """Write every file of a steady run into ``tmp`` (summary.json last); returns the names written.
+
+    The figures' data is gathered first; a ``worker`` draws them while this
+    process writes the fields, profiles and records (if it fails, they are
+    drawn here).
+    """
+    written = ["summary.json"]
+    derived = DerivedFields(run.fields) if fields or figures else None     # shared by XDMF and figures
+    profiles = write_profiles(tmp, run.fields, comm)                      # the figures show them: first
+    data = figure_data(run.fields, profiles, summary, overlay_profiles, derived) if figures else None
+    if worker is not None and data is not None:
+        worker.submit(tmp, data)
+    if fields:
+        written += write_fields(tmp, run.fields, derived)
+    written += [f"{k.lower()}_profiles.{ext}" for k in profiles for ext in ("h5", "csv")]
+    if not monolithic:
+        run.solver.scheme.write_records(os.path.join(tmp, "coupling"))
+        written.append("coupling/")
+    if data is not None:
+        written += _figures(tmp, data, worker)
+    for name, value in (extra_json or {}).items():
+        write_json_file(os.path.join(tmp, name), value, comm)
+        written.append(name)
+    summary["files"] = written
+    write_json_file(os.path.join(tmp, "summary.json"), summary, comm)
+    return written
+
+
+def _figures(tmp: str, data: dict, worker: FigureWorker | None) -> list[str]:
+    """The figures drawn by ``worker``, or here if there is none or it failed (rank 0's data)."""
+    if worker is not None:
+        try:
+            return worker.result()
+        except FigureWorkerError as exc:
+            print(f"gelcell: warning: {exc}; drawing the figures in this process", file=sys.stderr, flush=True)
+    from gelcell.figures import render_device_figures
+    return render_device_figures(tmp, data)
+
+
 def run_case(params: CaseParameters, out: str | None, *, monolithic: bool = False, scheme: str = "serial",
              acceleration: str = "iqn-ils", coupling: typing.Mapping | None = None,
              comm: MPI.Comm = MPI.COMM_WORLD, verbose: bool = True, figures: bool = True,
@@ -360,36 +402,32 @@ def run_case(params: CaseParameters, out: str | None, *, monolithic: bool = Fals
     n_cells = len(params.geometry.cell_list()) if params.with_cell else 0
     say(f"gelcell: {device}, {'without cell' if not n_cells else 'with cell' if n_cells == 1 else f'{n_cells} cells'}, "
         f"{'monolithic' if monolithic else f'partitioned ({scheme}, {acceleration})'}")
-    if monolithic:
-        run = solve_monolithic(params, comm)
-    else:
-        run = solve_partitioned(params, scheme, acceleration, coupling, comm, verbose, gamma2=gamma2, reuse=reuse)
-    summary = report(run.summary, params)
-    say(format_summary(summary))
-    if "interface_residuals" in summary:
-        say(format_residuals(summary["interface_residuals"]))
-    if comm.rank == 0:
-        for warning in summary["model"]["warnings"]:
-            print(f"gelcell: warning: {warning}", file=sys.stderr, flush=True)
-    if out is None:
-        return summary
-    with atomic_directory(out, comm) as tmp:
-        written = ["summary.json"]
-        derived = DerivedFields(run.fields) if fields or figures else None     # shared by XDMF and figures
-        if fields:
-            written += write_fields(tmp, run.fields, derived)
-        profiles = write_profiles(tmp, run.fields, comm)
-        written += [f"{k.lower()}_profiles.{ext}" for k in profiles for ext in ("h5", "csv")]
-        if not monolithic:
-            run.solver.scheme.write_records(os.path.join(tmp, "coupling"))
-            written.append("coupling/")
-        if figures:
-            from gelcell.plots import draw_figures
-            written += draw_figures(tmp, run.fields, profiles, summary, overlay_profiles, derived)
-        for name, data in (extra_json or {}).items():
-            write_json_file(os.path.join(tmp, name), data, comm)
-            written.append(name)
-        summary["files"] = written
-        write_json_file(os.path.join(tmp, "summary.json"), summary, comm)
+    # a serial run draws its figures in a second process, which imports matplotlib while this one solves
+    worker = FigureWorker() if out is not None and figures and FigureWorker.use_worker(comm) else None
+    try:
+        if monolithic:
+            run = solve_monolithic(params, comm)
+        else:
+            run = solve_partitioned(params, scheme, acceleration, coupling, comm, verbose, gamma2=gamma2, reuse=reuse)
+        summary = report(run.summary, params)
+        say(format_summary(summary))
+        if "interface_residuals" in summary:
+            say(format_residuals(summary["interface_residuals"]))
+        if comm.rank == 0:
+            for warning in summary["model"]["warnings"]:
+                print(f"gelcell: warning: {warning}", file=sys.stderr, flush=True)
+        if out is None:
+            return summary
+        with atomic_directory(out, comm) as tmp:
+            try:
+                written = _write_outputs(tmp, run, summary, comm, monolithic=monolithic, figures=figures,
+                                         fields=fields, overlay_profiles=overlay_profiles, extra_json=extra_json,
+                                         worker=worker)
+            finally:
+                if worker is not None:
+                    worker.close()          # before the directory is promoted or removed
+    finally:
+        if worker is not None:
+            worker.close()
     say(f"wrote {shown_path or os.path.abspath(out)}: " + ", ".join(written))
     return summary

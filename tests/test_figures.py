@@ -1,4 +1,9 @@
-"""The PNG writer of the figures: one rendering, cropped to what is drawn plus the margin."""
+"""The figures: the PNG writer (one rendering, cropped to what is drawn plus the margin) and the worker process that draws a serial run's figures."""
+
+import io
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -8,7 +13,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from PIL import Image  # noqa: E402
 
-from gelcell.plots import _DPI, _PAD_INCHES, write_png  # noqa: E402
+from gelcell.figures import _DPI, _PAD_INCHES, write_png  # noqa: E402
 
 
 def test_write_png_crops_to_the_drawing_plus_the_margin(tmp_path):
@@ -34,3 +39,57 @@ def test_write_png_keeps_an_empty_figure_whole(tmp_path):
     write_png(fig, str(path))
     plt.close(fig)
     assert Image.open(path).size == (2 * _DPI, 1 * _DPI)
+
+
+# -- the figure worker: a second process draws a serial run's figures ------------------------------
+def _pixels(directory):
+    return {f: np.asarray(Image.open(directory / f)) for f in sorted(os.listdir(directory)) if f.endswith(".png")}
+
+
+def _run(out, monkeypatch, worker: str):
+    from gelcell.parameters import CaseParameters
+    from gelcell.runner import run_case
+    monkeypatch.setenv("GELCELL_FIGURE_WORKER", worker)
+    params = CaseParameters.default("shear").with_mesh_size(3)
+    return run_case(params, str(out), verbose=False, stream=io.StringIO(), fields=False)
+
+
+@pytest.mark.skip_in_parallel
+def test_worker_draws_the_same_figures_as_the_run_itself(tmp_path, monkeypatch):
+    _run(tmp_path / "worker", monkeypatch, "1")
+    _run(tmp_path / "here", monkeypatch, "0")
+    a, b = _pixels(tmp_path / "worker"), _pixels(tmp_path / "here")
+    assert sorted(a) == sorted(b) and len(a) == 6, sorted(a)
+    for name in a:
+        assert np.array_equal(a[name], b[name]), name
+
+
+@pytest.mark.skip_in_parallel
+def test_a_failed_worker_leaves_the_figures_to_the_run(tmp_path, monkeypatch, capfd):
+    import gelcell.plots as plots
+
+    class BrokenWorker(plots.FigureWorker):
+        def __init__(self):
+            self.proc = subprocess.Popen([sys.executable, "-c", "import sys; sys.stderr.write('boom'); sys.exit(3)"],
+                                         stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+
+    monkeypatch.setattr("gelcell.runner.FigureWorker", BrokenWorker)
+    summary = _run(tmp_path / "run", monkeypatch, "1")
+    assert "figure worker failed (exit 3): boom" in capfd.readouterr().err
+    pngs = [f for f in summary["files"] if f.endswith(".png")]
+    assert len(pngs) == 6 and all((tmp_path / "run" / f).stat().st_size > 0 for f in pngs)
+
+
+def test_the_worker_side_needs_neither_dolfinx_nor_mpi():
+    code = ("import sys, gelcell.figures; "
+            "print([m for m in ('dolfinx', 'mpi4py', 'petsc4py', 'ufl') if m in sys.modules])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
+    assert out.stdout.strip() == "[]", out
+
+
+@pytest.mark.skip_in_parallel
+def test_closing_a_worker_stops_it():
+    from gelcell.plots import FigureWorker
+    worker = FigureWorker()           # waits for data that never comes
+    worker.close()
+    assert worker.proc.returncode is not None
