@@ -97,11 +97,11 @@ def profiles_figure(path: str, profiles: dict, V: float, L: float, label: str, o
     fig, axes = plt.subplots(2, 2, figsize=(10, 6), sharex=True)
     spec = [("v_fx", V, "v_f,x [µm/s]"), ("v_fy", V, "v_f,y [µm/s]"),
             ("u_sx", L, "u_s,x [µm]"), ("u_sy", L, "u_s,y [µm]")]
-    for ax, (key, factor, label) in zip(axes.ravel(), spec):
+    for ax, (key, factor, ylabel) in zip(axes.ravel(), spec):
         ax.plot(profiles[along], factor * profiles[key], "-", label=labels[0])
         if overlay is not None:
             ax.plot(overlay[along], factor * overlay[key], "--", label=labels[1])
-        ax.set_ylabel(label)
+        ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
     for ax in axes[1]:
         ax.set_xlabel(f"{along} / L0 along Γ1")

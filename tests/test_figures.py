@@ -93,3 +93,26 @@ def test_closing_a_worker_stops_it():
     worker = FigureWorker()           # waits for data that never comes
     worker.close()
     assert worker.proc.returncode is not None
+
+
+@pytest.mark.skip_in_parallel
+def test_figures_carry_the_device_name_titles_and_units(tmp_path, monkeypatch):
+    import gelcell.figures
+    texts = {}
+
+    def record(fig, path):
+        texts[os.path.basename(path)] = {
+            "suptitle": fig._suptitle.get_text() if fig._suptitle is not None else "",
+            "titles": [ax.get_title() for ax in fig.axes],
+            "ylabels": [ax.get_ylabel() for ax in fig.axes]}
+        open(path, "wb").close()
+
+    monkeypatch.setattr(gelcell.figures, "write_png", record)
+    _run(tmp_path / "run", monkeypatch, "0")        # drawn in this process, so the recorder sees them
+    profiles = texts["gamma1_profiles.png"]
+    assert profiles["suptitle"] == "shear flow: profiles along Γ1", profiles
+    assert profiles["ylabels"] == ["v_f,x [µm/s]", "v_f,y [µm/s]", "u_s,x [µm]", "u_s,y [µm]"], profiles
+    assert "interstitial velocity in the gel" in texts["gel_velocity.png"]["titles"]
+    assert "|v_f| [µm/s]" in texts["gel_velocity.png"]["ylabels"]           # the colour bar
+    assert "p [mPa]" in texts["gel_pressure.png"]["ylabels"]
+    assert texts["cell_traction_parts.png"]["suptitle"] == "stress parts in the gel around the cell (von Mises)"
