@@ -116,3 +116,17 @@ def test_figures_carry_the_device_name_titles_and_units(tmp_path, monkeypatch):
     assert "|v_f| [µm/s]" in texts["gel_velocity.png"]["ylabels"]           # the colour bar
     assert "p [mPa]" in texts["gel_pressure.png"]["ylabels"]
     assert texts["cell_traction_parts.png"]["suptitle"] == "stress parts in the gel around the cell (von Mises)"
+
+
+def test_write_png_keeps_text_that_overhangs_the_figure(tmp_path):
+    # a title wider than its 2-inch figure (by less than the overhang room): neither end may be cut off
+    fig = plt.figure(figsize=(2, 2))
+    fig.suptitle("a title wider than its figure")
+    path = tmp_path / "title.png"
+    write_png(fig, str(path))
+    plt.close(fig)
+    image = np.asarray(Image.open(path).convert("RGB"))
+    pad = round(_PAD_INCHES * _DPI)
+    ink = np.flatnonzero(np.any(image < 255, axis=(0, 2)))
+    assert image.shape[1] > 2 * _DPI                      # wider than the figure
+    assert abs(ink[0] - pad) <= 1 and abs(image.shape[1] - 1 - ink[-1] - pad) <= 1   # the margin on both sides
