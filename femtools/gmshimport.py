@@ -10,9 +10,10 @@ handling.  This module imports nothing heavy, so light modules can use it.
 
 from __future__ import annotations
 
+import contextlib
 import signal
 
-__all__ = ["import_gmsh"]
+__all__ = ["import_gmsh", "gmsh_session"]
 
 
 def import_gmsh():
@@ -27,3 +28,16 @@ def import_gmsh():
             signal.signal(signal.SIGINT, handler)
         gmsh.oldsig = handler
     return gmsh
+
+
+@contextlib.contextmanager
+def gmsh_session():
+    """``with gmsh_session() as gmsh:`` a quiet gmsh session (no config files, no terminal output),
+    finalized on leaving, whatever happens inside."""
+    gmsh = import_gmsh()
+    gmsh.initialize(readConfigFiles=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        yield gmsh
+    finally:
+        gmsh.finalize()

@@ -44,7 +44,7 @@ from mpi4py import MPI
 
 from dolfinx import io as _io
 
-from femtools.gmshimport import import_gmsh
+from femtools.gmshimport import gmsh_session
 from femtools.mesh import ModelArrays, model_to_mesh, model_to_region_mesh
 from gelcell.parameters import CaseParameters
 
@@ -230,18 +230,13 @@ def _build_model(params: CaseParameters) -> dict:
 
 def _mesh_with_gmsh(params: CaseParameters) -> ModelArrays:
     """Mesh the device of ``params`` with gmsh (rank 0) and return the raw arrays of its mesh."""
-    gmsh = import_gmsh()
-    gmsh.initialize(readConfigFiles=False)
-    try:
-        gmsh.option.setNumber("General.Terminal", 0)
+    with gmsh_session() as gmsh:
         if params.case == "file":
             from gelcell.geometryfile import build_file_model
             build_file_model(params)
         else:
             _build_model(params)
         return ModelArrays.from_model(gmsh.model)
-    finally:
-        gmsh.finalize()
 
 
 def _device_arrays(params: CaseParameters) -> ModelArrays:

@@ -32,7 +32,7 @@ import re
 
 import numpy as np
 
-from femtools.gmshimport import import_gmsh
+from femtools.gmshimport import gmsh_session, import_gmsh
 from gelcell.parameters import ParameterError
 
 __all__ = ["read_geometry", "file_layout", "build_file_model", "GeometryInfo", "SUFFIXES"]
@@ -141,10 +141,7 @@ def _loops(surface: int, points: dict) -> list:
 
 
 def _read_with_gmsh(path: str) -> GeometryInfo:
-    gmsh = import_gmsh()
-    gmsh.initialize(readConfigFiles=False)
-    try:
-        gmsh.option.setNumber("General.Terminal", 0)
+    with gmsh_session() as gmsh:
         try:
             gmsh.open(path)
         except Exception as exc:
@@ -172,8 +169,6 @@ def _read_with_gmsh(path: str) -> GeometryInfo:
         return GeometryInfo(path=path, groups=groups, adjacent=adjacent, curve_points=points, curve_ends=ends,
                             surface_polygons=polygons, element_types=sorted(set(types)), max_dim=max_dim,
                             element_order=order, scale=scale)
-    finally:
-        gmsh.finalize()
 
 
 def read_geometry(path: str) -> GeometryInfo:
@@ -755,14 +750,11 @@ def export_builtin(params, path: str) -> None:
     Loading it with ``--geometry`` gives the same mesh, hence the built-in
     device's results; it is also a starting point for a device of one's own.
     """
-    gmsh = import_gmsh()
     from gelcell.geometry import _build_model
     if params.case == "file":
         raise ParameterError("export_builtin: the case is already a geometry file")
     names = convention_names(params)
-    gmsh.initialize(readConfigFiles=False)
-    try:
-        gmsh.option.setNumber("General.Terminal", 0)
+    with gmsh_session() as gmsh:
         _build_model(params)
         # one group per convention name (the symmetry lines and the held walls merge)
         groups: dict = {}
@@ -776,5 +768,3 @@ def export_builtin(params, path: str) -> None:
             gmsh.model.setPhysicalName(dim, k, name)
         gmsh.option.setNumber("Mesh.MshFileVersion", 4.1)
         gmsh.write(path)
-    finally:
-        gmsh.finalize()
