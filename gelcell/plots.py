@@ -21,20 +21,10 @@ import types
 from gelcell.output import DerivedFields, P1Gather
 from gelcell.results import DeviceFields
 
-__all__ = ["draw_figures", "draw_transient_figures", "figure_data", "plot_profiles", "FigureWorker",
-           "FigureWorkerError"]
+__all__ = ["draw_figures", "figure_data", "FigureWorker", "FigureWorkerError"]
 
 #: the package's parent directory, so that the worker imports this very gelcell
 _ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-
-
-# gelcell.figures imports matplotlib (~0.5 s): only where a figure is drawn in this process
-def plot_profiles(path: str, profiles: dict, params, overlay: dict | None = None,
-                  labels: tuple[str, str] = ("with cell", "without cell")) -> None:
-    """The four Gamma1 profiles v_fx, v_fy, u_sx, u_sy of ``params``'s device against the undeformed coordinate."""
-    from gelcell.figures import profiles_figure
-    profiles_figure(path, profiles, params.to_report(1.0, "velocity"), params.to_report(1.0, "length"),
-                    params.label, overlay, labels)
 
 
 def figure_data(fields: DeviceFields, profiles: dict, summary: dict, overlay: dict | None = None,
@@ -69,15 +59,9 @@ def figure_data(fields: DeviceFields, profiles: dict, summary: dict, overlay: di
 def draw_figures(directory: str, fields: DeviceFields, profiles: dict, summary: dict,
                  overlay: dict | None = None, derived: DerivedFields | None = None) -> list[str]:
     """Draw every figure of a run into ``directory`` in this process; returns the file names (rank 0)."""
-    from gelcell.figures import render_device_figures
+    from gelcell.figures import render_device_figures      # imports matplotlib (~0.5 s): only here
     data = figure_data(fields, profiles, summary, overlay, derived)
     return [] if data is None else render_device_figures(directory, data)
-
-
-def draw_transient_figures(directory: str, rows: list[dict], summary: dict, params, comm) -> list[str]:
-    """trajectory.png and iterations.png of a time-dependent run (``gelcell.figures``); rank 0 draws."""
-    from gelcell.figures import draw_transient_figures as draw
-    return draw(directory, rows, summary, params, comm)
 
 
 class FigureWorkerError(RuntimeError):

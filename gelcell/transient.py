@@ -690,7 +690,8 @@ def run_transient_case(params: CaseParameters, settings: TimeSettings, out: str 
         if not monolithic:
             written.append("coupling/")
         if figures:
-            from gelcell.plots import draw_figures, draw_transient_figures
+            from gelcell.figures import draw_transient_figures
+            from gelcell.plots import draw_figures
             written += draw_figures(work_dir, backend.fields, profiles, summary)
             written += draw_transient_figures(work_dir, state["rows"], summary, params, comm)
         summary["files"] = written
