@@ -217,12 +217,17 @@ def qr_filter(matrix: np.ndarray, kind: str, limit: float) -> list[int]:
     Returns:
         Sorted list of column indices to delete.
     """
+    return _filter_columns(matrix, kind, limit)[0]
+
+
+def _filter_columns(matrix: np.ndarray, kind: str, limit: float) -> tuple[list[int], np.ndarray | None]:
+    """:func:`qr_filter`'s deletions, and for ``"qr2"`` an orthonormal basis of the kept columns."""
     n, m = matrix.shape
     norms = np.linalg.norm(matrix, axis=0) if m else np.zeros(0)
     deleted = [j for j in range(m) if not np.isfinite(norms[j]) or norms[j] == 0.0]
     keep = [j for j in range(m) if j not in deleted]
     if kind == "none" or not keep:
-        return sorted(deleted)
+        return sorted(deleted), None
     if kind == "qr1":
         while len(keep) > n:
             deleted.append(keep.pop())
@@ -234,24 +239,50 @@ def qr_filter(matrix: np.ndarray, kind: str, limit: float) -> list[int]:
                 break
             deleted.append(keep.pop(int(bad[0])))
     elif kind == "qr2":
-        basis: list[np.ndarray] = []
-        kept: list[int] = []
-        for j in keep:
-            v = matrix[:, j].astype(float, copy=True)
-            rho0 = float(np.linalg.norm(v))
-            if basis:
-                q = np.column_stack(basis)
-                for _ in range(2):
-                    v -= q @ (q.T @ v)
-            rho = float(np.linalg.norm(v))
-            if len(basis) >= n or rho <= limit * rho0 or rho <= np.finfo(float).tiny:
-                deleted.append(j)
-            else:
-                basis.append(v / rho)
-                kept.append(j)
+        dependent, basis = _qr2_deleted(matrix, keep, norms, limit)
+        return sorted(deleted + dependent), basis
     else:
         raise ValueError(f"qr_filter: kind = {kind!r} is not allowed; allowed: 'none', 'qr1', 'qr2'")
-    return sorted(deleted)
+    return sorted(deleted), None
+
+
+def _qr2_deleted(matrix: np.ndarray, columns: list[int], norms: np.ndarray,
+                 limit: float) -> tuple[list[int], np.ndarray]:
+    """QR2's deletions: Gram–Schmidt newest first, by blocks of Householder QR (LAPACK).
+
+    A column's part orthogonal to the kept newer columns is the diagonal entry
+    of R when the columns are factorised in order, so one QR of a block gives
+    the test for all of its columns up to the first one deleted; the columns
+    after it are factorised again against the new basis (projected out twice,
+    as in Gram–Schmidt with re-orthogonalisation).  The same decisions as the
+    column-by-column loop, at the cost of one QR plus one per deletion.
+
+    Returns the deleted columns and an orthonormal basis of the kept ones (in their order).
+    """
+    n = matrix.shape[0]
+    deleted: list[int] = []
+    basis = np.zeros((n, 0))
+    pending = list(columns)
+    while pending:
+        room = n - basis.shape[1]
+        if room == 0:                       # the basis spans R^n: every further column is dependent
+            return deleted + pending, basis
+        block_columns = pending[:room]
+        block = matrix[:, block_columns].astype(float)
+        for _ in range(2 if basis.shape[1] else 0):
+            block -= basis @ (basis.T @ block)
+        q, r = np.linalg.qr(block, mode="reduced")
+        rho = np.abs(np.diag(r))
+        bad = np.flatnonzero((rho <= limit * norms[block_columns]) | (rho <= np.finfo(float).tiny))
+        if bad.size == 0:
+            basis = np.hstack([basis, q])
+            pending = pending[room:]
+            continue
+        b = int(bad[0])
+        basis = np.hstack([basis, q[:, :b]])
+        deleted.append(block_columns[b])
+        pending = pending[b + 1:]
+    return deleted, basis
 
 
 # --------------------------------------------------------------------------- base class
@@ -467,6 +498,8 @@ class _QuasiNewton(Acceleration):
         self.window_columns: list[int] = [0]  # columns per window, current window first
         self.previous_residual: np.ndarray | None = None
         self.previous_output: np.ndarray | None = None
+        #: (V, weights, orthonormal basis of P V) left by the last QR2 filter; valid while V and P are
+        self._kept_basis: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self.prior_diagonal = relaxation_prior_diagonal(dict(config.relaxation_prior), layout)
         self.surrogate: Any = None
 
@@ -531,24 +564,30 @@ class _QuasiNewton(Acceleration):
     def _filter(self, info: AccelerationInfo) -> None:
         if self.V.shape[1] == 0:
             return
-        scaled = self.preconditioner.weights[:, None] * self.V
-        deleted = qr_filter(scaled, self.config.filter.type, self.config.filter.limit)
+        weights = self.preconditioner.weights
+        deleted, basis = _filter_columns(weights[:, None] * self.V, self.config.filter.type,
+                                         self.config.filter.limit)
         self._remove_columns(deleted)
         info.columns_filtered += len(deleted)
+        # QR2 has factorised the kept columns already: the least-squares step reuses that basis
+        self._kept_basis = None if basis is None else (self.V, weights.copy(), basis)
 
     def _least_squares_factors(self) -> tuple[np.ndarray, np.ndarray]:
         """``(Q, R)`` of the scaled ``P V`` (after filtering)."""
-        scaled = self.preconditioner.weights[:, None] * self.V
-        q, r = np.linalg.qr(scaled, mode="reduced")
-        return q, r
+        weights = self.preconditioner.weights
+        scaled = weights[:, None] * self.V
+        cached = self._kept_basis
+        if cached is not None and cached[0] is self.V and np.array_equal(cached[1], weights):
+            q = cached[2]
+            return q, np.triu(q.T @ scaled)
+        return np.linalg.qr(scaled, mode="reduced")
 
     def _alpha(self, r: np.ndarray) -> np.ndarray:
         w = self.preconditioner.weights
-        scaled = w[:, None] * self.V
         rhs = -(w * r)
         if self.config.filter.type == "none":
-            return np.linalg.lstsq(scaled, rhs, rcond=None)[0]
-        q, rr = np.linalg.qr(scaled, mode="reduced")
+            return np.linalg.lstsq(w[:, None] * self.V, rhs, rcond=None)[0]
+        q, rr = self._least_squares_factors()
         return sla.solve_triangular(rr, q.T @ rhs)
 
     def _relax(self, x: np.ndarray, r: np.ndarray) -> np.ndarray:

@@ -116,6 +116,45 @@ def test_quasi_newton_filter_removes_a_planted_dependent_column():
     assert cp.qr_filter(np.column_stack([v2, np.zeros(10), v1]), "none", 1e-8) == [1]
 
 
+def gram_schmidt_qr2(matrix: np.ndarray, limit: float) -> list[int]:
+    """QR2 by its definition (preCICE): column by column, newest first, Gram–Schmidt with one
+    re-orthogonalisation against the kept newer columns; a column whose orthogonal part is at most
+    ``limit`` times its norm, or that comes after n kept ones, is deleted."""
+    n = matrix.shape[0]
+    basis, deleted = [], []
+    for j in range(matrix.shape[1]):
+        v = matrix[:, j].copy()
+        rho0 = np.linalg.norm(v)
+        if not np.isfinite(rho0) or rho0 == 0:
+            deleted.append(j)
+            continue
+        for _ in range(2 if basis else 0):
+            q = np.column_stack(basis)
+            v -= q @ (q.T @ v)
+        rho = np.linalg.norm(v)
+        if len(basis) >= n or rho <= limit * rho0:
+            deleted.append(j)
+        else:
+            basis.append(v / rho)
+    return deleted
+
+
+@pytest.mark.parametrize("n,m", [(40, 12), (40, 40), (30, 55)])
+def test_qr2_deletes_what_gram_schmidt_deletes(n, m):
+    """The blocked (LAPACK) QR2 against its column-by-column definition, with planted dependent
+    columns (exact and to 1e-6 of their norm), a zero column and more columns than rows."""
+    rng = np.random.default_rng(n + m)
+    matrix = rng.standard_normal((n, m)) * rng.uniform(1e-3, 1e3, m)
+    for j, (a, b) in {3: (1, 2), 7: (0, 5), 9: (4, 8)}.items():
+        matrix[:, j] = matrix[:, a] - 2 * matrix[:, b] + 1e-6 * np.linalg.norm(matrix[:, a]) * rng.standard_normal(n) / n
+    matrix[:, 10] = matrix[:, 6]
+    matrix[:, 11] = 0.0
+    for limit in (1e-3, 1e-8):
+        expected = gram_schmidt_qr2(matrix, limit)
+        assert cp.qr_filter(matrix, "qr2", limit) == expected, limit
+        assert {10, 11} <= set(expected) and (limit < 1e-5 or {3, 7, 9} <= set(expected))
+
+
 @pytest.mark.parametrize("filter_type", ["qr1", "qr2"])
 def test_iqn_filter_deletes_a_planted_column_inside_the_method(filter_type):
     rng = np.random.default_rng(7)
