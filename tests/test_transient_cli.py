@@ -20,6 +20,7 @@ import pytest
 
 from mpi4py import MPI
 
+from coupling.serialization import load_npz
 from gelcell import cli
 from gelcell.timesettings import time_scales
 from gelcell.transient import COLUMNS, PartitionedBackend, run_transient_case
@@ -49,10 +50,17 @@ def settings():
                         time_tol=1e-2, output_every=2)
 
 
-def test_outputs_of_a_transient_run(shared_tmp_path, settings):
+@pytest.fixture(scope="module")
+def complete_run(tmp_path_factory, settings):
+    """One uninterrupted run with every output: ``(directory, summary)`` (a directory shared by the ranks)."""
+    path = COMM.bcast(str(tmp_path_factory.mktemp("transient")) if COMM.rank == 0 else None, root=0)
+    out = os.path.join(path, "run")
+    return out, run_transient_case(case("shear"), settings, out, comm=COMM, figures=True)
+
+
+def test_outputs_of_a_transient_run(complete_run, settings):
     """Every file of the issue is written; the checkpoint and frames are gone; t = 0 is a row."""
-    out = str(shared_tmp_path / "run")
-    summary = run_transient_case(case("shear"), settings, out, comm=COMM, figures=True)
+    out, summary = complete_run
     if COMM.rank == 0:
         names = set(os.listdir(out))
         for f in ("summary.json", "timeseries.csv", "timeseries.h5", "trajectory.png", "iterations.png",
@@ -83,20 +91,23 @@ class Interrupt(Exception):
     pass
 
 
-def test_interrupted_run_resumes_to_the_same_result(shared_tmp_path, settings, monkeypatch):
-    """A run stopped in its 4th window (attempt) and resumed equals the uninterrupted run to 1e-12.
+def test_interrupted_run_resumes_to_the_same_result(shared_tmp_path, settings, complete_run, monkeypatch):
+    """A run stopped in its 4th window (attempt) and resumed equals the uninterrupted run.
 
     Adaptive BDF2: the checkpoint carries the coupling's quasi-Newton columns,
     the extrapolation history, the gel's displacement history and the step
-    controller's state.  In serial the resumed run repeats the uninterrupted
-    one bit for bit.  Under MPI two uninterrupted runs already differ by
-    ~2e-11 (MUMPS's parallel factorisation schedules its work dynamically, so
-    its round-off changes from run to run; measured), and a window's iteration
-    count can then differ by one: there the quantities are compared to 1e-9,
-    the bound that the coupling tolerance (1e-10 per window) implies.
+    controller's state.  The two runs agree to round-off, not bit for bit:
+    under MPI MUMPS schedules its parallel factorisation dynamically, and in
+    serial an optimised BLAS (OpenBLAS, README "Stack") rounds differently
+    when the same data sit elsewhere in memory; each coupling iteration's
+    result then moves within the coupling tolerance (measured ~3e-11 in serial,
+    ~2e-11 between two MPI runs).  So the quantities are compared to 1e-9, the
+    bound that the coupling tolerance (1e-10 per window) implies.  A state
+    that is not restored shows in the first resumed window's iteration count
+    (measured: 25 when restored, 19 without the quasi-Newton columns, 23
+    without the extrapolation history); round-off moves a count by at most one.
     """
-    reference = str(shared_tmp_path / "reference")
-    run_transient_case(case("shear"), settings, reference, comm=COMM, figures=False, fields=False)
+    reference = complete_run[0]       # writing fields and figures does not touch the solution
     out = str(shared_tmp_path / "interrupted")
     calls = {"n": 0}
     window = PartitionedBackend.window
@@ -114,15 +125,18 @@ def test_interrupted_run_resumes_to_the_same_result(shared_tmp_path, settings, m
     if COMM.rank == 0:
         assert os.path.isfile(os.path.join(out + ".partial", "checkpoint.npz"))
         assert not os.path.exists(out)
+    resumed_at = int(load_npz(os.path.join(out + ".partial", "checkpoint.npz"))["window"])   # windows done
     COMM.Barrier()
     run_transient_case(case("shear"), settings, out, comm=COMM, figures=False, fields=False, resume=True)
     if COMM.rank == 0:
         assert not os.path.exists(out + ".partial")
-        if COMM.size == 1:
-            assert_same_series(read_series(out), read_series(reference), 1e-12)
-        else:
-            physical = [c for c in COLUMNS if c not in ("iterations", "residual")]
-            assert_same_series(read_series(out), read_series(reference), 1e-9, physical)
+        resumed, uninterrupted = read_series(out), read_series(reference)
+        physical = [c for c in COLUMNS if c not in ("iterations", "residual")]
+        assert_same_series(resumed, uninterrupted, 1e-9, physical)
+        first = resumed_at + 1           # row 0 is t = 0
+        assert 1 < first < len(uninterrupted["t"])
+        assert abs(resumed["iterations"][first] - uninterrupted["iterations"][first]) <= 1, \
+            (first, resumed["iterations"], uninterrupted["iterations"])
 
 
 # --------------------------------------------------------------------------- the command line
