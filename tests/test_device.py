@@ -35,11 +35,13 @@ def runs(request):
     mono = solve_monolithic(p, checks=False)
     part = {acc: solve_partitioned(p, "serial", acc, verbose=False, checks=False)
             for acc in ("iqn-ils", "aitken")}
+    part["parallel iqn-ils"] = solve_partitioned(p, "parallel", "iqn-ils", verbose=False, checks=False)
     return case, mono, part
 
 
-@pytest.mark.parametrize("acceleration", ["iqn-ils", "aitken"])
+@pytest.mark.parametrize("acceleration", ["iqn-ils", "aitken", "parallel iqn-ils"])
 def test_partitioned_equals_monolithic(runs, acceleration):
+    """Serial (Gauss-Seidel) scheme with both accelerations, and the parallel (Jacobi) scheme."""
     case, mono, part = runs
     run = part[acceleration]
     assert run.summary["coupling"]["converged"]

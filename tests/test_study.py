@@ -14,6 +14,10 @@ import pytest
 
 from gelcell.study import run_study
 
+# serial only: the study is 40 device runs (~40 s), each of them a path whose 1- and 2-rank
+# answers are compared in test_device.py, test_iterations.py and test_transient.py
+pytestmark = pytest.mark.skip_in_parallel
+
 
 @pytest.fixture(scope="module")
 def study():
