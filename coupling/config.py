@@ -51,6 +51,8 @@ __all__ = [
 ]
 
 SCHEMES = ("serial-implicit", "parallel-implicit", "serial-explicit", "parallel-explicit")
+#: when an implicit scheme restores the participant states within a time window
+STATE_RELOADS = ("iteration", "window")
 ACCELERATIONS = ("none", "constant", "aitken", "iqn-ils", "iqn-imvj")
 FILTERS = ("none", "qr1", "qr2")
 PRECONDITIONERS = ("none", "constant", "value", "residual", "residual-sum")
@@ -345,6 +347,15 @@ class CouplingConfig:
             previous window's converged values, 1 = their linear extrapolation
             from the last two windows (variable dt allowed; preCICE's
             ``extrapolation-order``).
+        state_reload: When an implicit scheme restores the participants'
+            states in a time window: ``"iteration"`` = before every iteration
+            after the first (preCICE's checkpoint reading: each iteration
+            starts from the state at the window's start); ``"window"`` = only
+            when the whole window is retaken (:meth:`CouplingScheme.restore`),
+            so that each solve continues from the previous iteration's state.
+            ``"window"`` needs participants whose ``advance(t, dt)`` is
+            idempotent within a window and whose state only seeds the next
+            solve (e.g. a Newton initial guess, the time history kept apart).
     """
 
     scheme: str = "serial-implicit"
@@ -359,9 +370,11 @@ class CouplingConfig:
     record_data: bool = False
     check_replicated: bool = False
     extrapolation_order: int = 0
+    state_reload: str = "iteration"
 
     def __post_init__(self) -> None:
         where = "coupling"
+        _choice(where, "state_reload", self.state_reload, STATE_RELOADS)
         _integer(where, "extrapolation_order", self.extrapolation_order, minimum=0)
         if self.extrapolation_order > 1:
             raise ValueError(f"{where}.extrapolation_order = {self.extrapolation_order} must be 0 or 1")

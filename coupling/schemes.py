@@ -19,8 +19,10 @@ points) and runs the participants:
 Time-dependent runs (:meth:`CouplingScheme.run`) split ``[t, t_end]`` into
 windows of length ``dt``.  In each window of an implicit scheme every
 participant's state is saved (``save_state``) before the first iteration and
-restored (``load_state``) before every further one, and ``advance(t, dt)`` is
-called before every solve.  The initial guess of a window is the last value
+restored (``load_state``) before every further one (``state_reload =
+"iteration"``, the default; with ``"window"`` each solve continues from the
+previous iteration's state and states are restored only when a window is
+retaken), and ``advance(t, dt)`` is called before every solve.  The initial guess of a window is the last value
 of the previous one (constant extrapolation).
 
 With a residual ``r = x̃ - x``, the iteration stops with
@@ -303,7 +305,7 @@ class CouplingScheme:
                            dt: float | None, states: dict[str, Any],
                            solve_time: dict[str, float]) -> dict[str, np.ndarray]:
         if t is not None:
-            if self.implicit and iteration > 1:
+            if self.implicit and iteration > 1 and self.config.state_reload == "iteration":
                 self._call(name, "load_state", states[name])
             self._call(name, "advance", t, dt)
         inputs = {d: self._mappings[(d, name)](self.values[d]) for d in self._reads[name]}
@@ -433,7 +435,7 @@ class CouplingScheme:
                 self._window_end(t)            # the initial values belong to the start time
             self._extrapolate(t, dt)
         states: dict[str, Any] = {}
-        if transient and self.implicit:
+        if transient and self.implicit and (self.config.state_reload == "iteration" or self.recording is not None):
             for name in self.order:
                 states[name] = self._call(name, "save_state")
                 if self.recording is not None:

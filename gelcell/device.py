@@ -221,7 +221,9 @@ def coupling_config(scheme: str = "serial", acceleration: str = "iqn-ils", *, li
     last 4 solves are kept (``time_windows_reused``; no effect on one solve,
     reused by a Ca sweep, see ``Device.solve(reuse=...)``).
     Time-dependent runs (``transient``): each window starts from the linear
-    extrapolation of the last two, and IQN-ILS keeps the secant columns of
+    extrapolation of the last two, each solve continues from the previous
+    iteration's state (``state_reload = "window"``: the field solvers' linear
+    path), and IQN-ILS keeps the secant columns of
     the last 40 windows (at most 500): for a fixed dt the windows share one
     interface operator, so after ~15 windows the kept columns span it and a
     window takes ~4 iterations instead of ~10 (measured, docs/transient.md).
@@ -259,6 +261,10 @@ def coupling_config(scheme: str = "serial", acceleration: str = "iqn-ils", *, li
               "convergence": [{"type": "relative", "limit": limit, "data": "*"}]}
     if transient:
         config["extrapolation_order"] = 1
+        # each solve continues from the previous iteration's state (the participants' advance() is
+        # idempotent within a window and their states only seed Newton), so that the gel and the cell
+        # take their linear path: one step with the kept factorisation per coupling iteration
+        config["state_reload"] = "window"
     for key, value in (overrides or {}).items():
         if key == "acceleration" and isinstance(value, typing.Mapping):
             if value.get("type", acc["type"]) != acc["type"]:
@@ -530,7 +536,7 @@ class Device:
             gel_mesh, gel_tags, self.gel_parameters, no_slip=b.gel_no_slip, symmetry=b.gel_symmetry,
             fluid_interfaces=b.fluid_interfaces, cell_interfaces=b.cell_interfaces,
             newton_rtol=newton_rtol, transient=transient, kinematics=self.kinematics,
-            linear_path=not transient)
+            linear_path=True)
         self.cell = None
         if params.with_cell:
             cell_mesh, cell_tags = self.mesh.region("cell")
@@ -539,7 +545,7 @@ class Device:
                 cell_mesh, cell_tags, mu=params.mu_c, lmbda=params.lambda_c, stress_scale=s,
                 displacement_scale=d, interfaces=None if robin else b.cell_interfaces,
                 robin_interfaces={k: (t, kappas[k]) for k, t in b.cell_interfaces.items()} if robin else None,
-                symmetry=b.cell_symmetry, newton_rtol=newton_rtol, linear_path=not transient)
+                symmetry=b.cell_symmetry, newton_rtol=newton_rtol, linear_path=True)
         self.setup_time = time.perf_counter() - t0
         self.transient = bool(transient)
         fluid_participant = MovingFluidParticipant if finite else FluidParticipant

@@ -88,6 +88,7 @@ def test_missing_table_in_file(tmp_path):
     ({"min_iterations": 5, "max_iterations": 3}, r"min_iterations = 5 must be <= max_iterations = 3"),
     ({"on_max_iterations": "ignore"}, r"on_max_iterations = 'ignore' is not allowed.*'continue'"),
     ({"divergence_factor": 1.0}, r"divergence_factor = 1.0 must be > 1"),
+    ({"state_reload": "never"}, r"coupling.state_reload = 'never' is not allowed.*'iteration', 'window'"),
     ({"verbose": "yes"}, r"coupling.verbose = 'yes' must be true or false"),
     ({"order": "fluid"}, r"coupling.order = 'fluid' must be a list"),
     ({"convergence": [{"type": "relative"}]}, r"coupling.convergence\[0\]: missing required key 'limit'"),

@@ -47,6 +47,48 @@ class NoRestore(cp.toys.LinearOdeParticipant):
         pass
 
 
+class WindowAwareOde(cp.toys.LinearOdeParticipant):
+    """The same backward Euler ODE with its past state kept apart from the iterate: ``advance`` only
+    moves the past state when a new window starts, as ``state_reload = "window"`` requires."""
+
+    loads = 0
+
+    def save_state(self):
+        return {"u": self.u.copy(), "u_old": self.u_old.copy(), "t_new": self.t_new}
+
+    def load_state(self, state):
+        type(self).loads += 1
+        self.u, self.u_old, self.t_new = state["u"].copy(), state["u_old"].copy(), state["t_new"]
+
+    def advance(self, t, dt):
+        if t + dt != self.t_new:
+            self.u_old = self.u.copy()
+        self.t_new, self.dt = t + dt, dt
+
+
+@pytest.mark.parametrize("acceleration", ACCELERATIONS, ids=lambda a: a["type"])
+def test_state_reload_per_window_continues_from_the_last_iterate(acceleration):
+    """state_reload = "window": no state is restored within a window, the windows reach the exact
+    solution, and (the solves not depending on their initial state) with the same iterations as the
+    default reload before every iteration."""
+    runs = {}
+    for reload in ("iteration", "window"):
+        problem = transient_problem()
+        participants, data = problem.build()
+        aware = [WindowAwareOde(p.name, p.mesh, p.read, p.write, p.stiffness, p.coupling, p.source, p.u0)
+                 for p in participants]
+        WindowAwareOde.loads = 0
+        scheme = cp.build_scheme({"order": list(problem.order), "verbose": False, "max_iterations": 100,
+                                  "convergence": [{"type": "relative", "limit": 1e-12}],
+                                  "acceleration": acceleration, "state_reload": reload}, aware, data)
+        result = scheme.run(*problem.transient)
+        runs[reload] = (result.iterations_per_window, WindowAwareOde.loads, scheme)
+        for name, value in problem.exact.items():
+            np.testing.assert_allclose(scheme.latest(name), value, rtol=1e-9, err_msg=name)
+    assert runs["window"][1] == 0 < runs["iteration"][1]
+    assert runs["window"][0] == runs["iteration"][0]
+
+
 def test_without_restore_the_coupling_fails():
     problem = transient_problem()
     participants, data = problem.build()
@@ -87,21 +129,24 @@ def test_reuse_of_past_windows_lowers_the_iteration_count():
     {"type": "iqn-imvj", "initial_relaxation": 0.1, "preconditioner": {"type": "value", "freeze_after": 4}},
     {"type": "aitken", "initial_relaxation": 0.1},
 ], ids=lambda a: a["type"])
-def test_restart_reproduces_the_uninterrupted_run(scheme_name, acceleration, shared_tmp_path):
+@pytest.mark.parametrize("extrapolation", [0, 1])
+def test_restart_reproduces_the_uninterrupted_run(scheme_name, acceleration, extrapolation, shared_tmp_path):
+    """Bit for bit (1e-12) and with the same iterations: the columns, weights and extrapolation history."""
     if scheme_name == "parallel-implicit" and acceleration["type"] == "aitken":
         pytest.skip("Aitken does not converge on this Jacobi map")
     problem = transient_problem(windows=8)
     dt = problem.transient[1]
     n_total, n_first = 8, 3
-    full, _ = build(problem, acceleration, scheme_name)
+    full, _ = build(problem, acceleration, scheme_name, extrapolation_order=extrapolation)
     full_result = full.run(t_end=n_total * dt, dt=dt)
 
-    first, _ = build(problem, acceleration, scheme_name)
+    first, _ = build(problem, acceleration, scheme_name, extrapolation_order=extrapolation)
     first_result = first.run(t_end=n_first * dt, dt=dt)
     path = shared_tmp_path / "restart.npz"
     first.save_checkpoint(path)
 
-    second, _ = build(problem, acceleration, scheme_name)  # fresh participants at t = 0
+    # fresh participants at t = 0
+    second, _ = build(problem, acceleration, scheme_name, extrapolation_order=extrapolation)
     second.load_checkpoint(path)
     assert second.time == first.time and second.window == n_first
     second_result = second.run(t_end=n_total * dt, dt=dt)
