@@ -65,6 +65,9 @@ class DirectSolver:
     ``mat_mumps_icntl_N`` entries of ``options`` become MUMPS controls,
     ``pc_factor_mat_solver_type`` selects the factorisation package, and any
     other entry goes to the options database under a unique prefix.
+    ICNTL(7), the ordering, is refused: PETSc 3.18 resets it before the
+    analysis when it is set this way, and MUMPS's own choice (PORD; Debian's
+    MUMPS has neither METIS nor SCOTCH) leaves the least fill of those it has.
     """
 
     def __init__(self, comm: MPI.Comm, name: str, options: dict | None = None, kind: str = "lu"):
@@ -85,6 +88,9 @@ class DirectSolver:
         for key in list(options):
             m = _ICNTL.match(key)
             if m:
+                if int(m.group(1)) == 7:
+                    raise ValueError(f"{name}: mat_mumps_icntl_7 (the ordering) cannot be set: PETSc resets it "
+                                     "before the analysis; MUMPS chooses it (see DirectSolver)")
                 self.icntl[int(m.group(1))] = int(options.pop(key))
         if options:
             prefix = f"gelcell_{name}_{next(_counter)}_"

@@ -193,3 +193,25 @@ def test_interface_mass_is_the_restricted_mass_matrix():
     keep[0, :] = False
     pinned = InterfaceMass(nodes, V, ds, keep).solve(R)
     assert np.all(pinned[0] == 0.0)
+
+
+# -- MUMPS controls ----------------------------------------------------------------------------
+def test_direct_solver_keeps_its_mumps_controls_and_refuses_the_ordering():
+    """ICNTL(14) and (24) reach MUMPS (read back after the factorisation); ICNTL(7) is refused with
+    a message that names it, because PETSc would reset it before the analysis."""
+    n = 200
+    A = PETSc.Mat().createAIJ([n, n], nnz=3, comm=COMM)
+    start, end = A.getOwnershipRange()
+    for i in range(start, end):
+        A.setValue(i, i, 2.0)
+        for j in (i - 1, i + 1):
+            if 0 <= j < n:
+                A.setValue(i, j, -1.0)
+    A.assemble()
+    solver = DirectSolver(COMM, "controls", {"mat_mumps_icntl_14": 77})
+    solver.set_operator(A)
+    solver.factorize()
+    F = solver.ksp.getPC().getFactorMatrix()
+    assert F.getMumpsIcntl(14) == 77 and F.getMumpsIcntl(24) == 1
+    with pytest.raises(ValueError, match="mat_mumps_icntl_7"):
+        DirectSolver(COMM, "ordering", {"mat_mumps_icntl_7": 5})
