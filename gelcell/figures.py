@@ -201,14 +201,13 @@ def render_device_figures(directory: str, data: dict) -> list[str]:
         for spec in specs:
             centre, r = np.asarray(spec.centre), 0.5 * spec.diameter
             fig, axes = plt.subplots(2, 2, figsize=(9, 8))
-            for ax, (key, data) in zip(axes.ravel(), parts.items()):
+            for ax, (key, (Xg, Tg, values)) in zip(axes.ravel(), parts.items()):
                 # draw only the triangles that reach into the window; the colour scale still spans every
                 # vertex value (tripcolor scales by the value array, which stays whole)
-                X, T, values = data
                 lo, hi = centre - 4 * r, centre + 4 * r
-                corners = X[T]
+                corners = Xg[Tg]
                 inside = np.all((corners.max(axis=1) >= lo) & (corners.min(axis=1) <= hi), axis=1)
-                _field_panel(ax, (X, T[inside], values), S * values, "von Mises [mPa]", cmap="magma")
+                _field_panel(ax, (Xg, Tg[inside], values), S * values, "von Mises [mPa]", cmap="magma")
                 ax.set_xlim(centre[0] - 4 * r, centre[0] + 4 * r)
                 ax.set_ylim(centre[1] - 4 * r, centre[1] + 4 * r)
                 for other in specs:
