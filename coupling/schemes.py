@@ -22,8 +22,9 @@ participant's state is saved (``save_state``) before the first iteration and
 restored (``load_state``) before every further one (``state_reload =
 "iteration"``, the default; with ``"window"`` each solve continues from the
 previous iteration's state and states are restored only when a window is
-retaken), and ``advance(t, dt)`` is called before every solve.  The initial guess of a window is the last value
-of the previous one (constant extrapolation).
+retaken), and ``advance(t, dt)`` is called before every solve.  The initial
+guess of a window is the last value of the previous one (constant
+extrapolation; ``extrapolation_order = 1``: linear).
 
 With a residual ``r = x̃ - x``, the iteration stops with
 :class:`CouplingDivergedError` if a data's values or residual are not finite,
