@@ -10,11 +10,13 @@ reads them directly.
 
 from __future__ import annotations
 
+import functools
 import io
 import json
 import os
 import pickle
 import sys
+import typing
 
 import numpy as np
 
@@ -23,8 +25,10 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import matplotlib.tri as mtri  # noqa: E402
+from matplotlib.collections import TriMesh  # noqa: E402
 
-__all__ = ["render_device_figures", "profiles_figure", "draw_transient_figures", "write_png"]
+__all__ = ["render_device_figures", "device_figure_tasks", "run_tasks", "gouraud", "profiles_figure",
+           "draw_transient_figures", "write_png"]
 
 
 def _triangulation(data):
@@ -34,12 +38,26 @@ def _triangulation(data):
 
 def _field_panel(ax, data, values, label, cmap="viridis"):
     tri = _triangulation(data)
-    m = ax.tripcolor(tri, values, shading="gouraud", cmap=cmap)
+    m = gouraud(ax, tri, values, cmap)
     plt.colorbar(m, ax=ax, label=label, shrink=0.8)
     ax.set_aspect("equal")
     ax.set_xlabel("x / L0")
     ax.set_ylabel("y / L0")
     return tri
+
+
+def gouraud(ax, tri, values, cmap):
+    """``ax.tripcolor(tri, values, shading="gouraud", cmap=cmap)``, the same pixels, without its
+    autoscaling pass, which converts every triangle to a Path (0.3 s of a run's figures) to find
+    the bounding box of the points, which tripcolor has already added to the data limits."""
+    m = TriMesh(tri, array=np.asarray(values), cmap=cmap, linewidths=(0.25,), edgecolors="none",
+                antialiaseds=False)
+    m.autoscale_None()
+    ax.grid(False)
+    ax.update_datalim([(tri.x.min(), tri.y.min()), (tri.x.max(), tri.y.max())])
+    ax.autoscale_view()
+    ax.add_collection(m, autolim=False)
+    return m
 
 
 def _streamlines(ax, tri, vx, vy):
@@ -99,11 +117,10 @@ def _as_image(flat: np.ndarray, width: float, height: float) -> np.ndarray:
     raise RuntimeError(f"cannot read a rendered figure of {n} pixels as about {width:.0f} x {height:.0f}")
 
 
-def _save(fig, directory, name, written):
-    path = os.path.join(directory, name)
-    write_png(fig, path)
+def _save(fig, directory, name) -> list[str]:
+    write_png(fig, os.path.join(directory, name))
     plt.close(fig)
-    written.append(name)
+    return [name]
 
 
 def profiles_figure(path: str, profiles: dict, V: float, L: float, label: str, overlay: dict | None = None,
@@ -142,85 +159,148 @@ def _mark_cells(ax, specs) -> None:
                         fontsize=6, color="w")
 
 
-def render_device_figures(directory: str, data: dict) -> list[str]:
-    """Draw the figures of a device run from gathered data (``gelcell.plots.figure_data``) into
-    ``directory``; returns the file names.  Pure numpy and matplotlib (also run in a worker process)."""
-    V, L, S = data["V"], data["L"], data["S"]
-    speed, pressure, disp, vm = data["speed"], data["pressure"], data["disp"], data["vm"]
-    parts, cell, specs = data["parts"], data["cell"], data["cells"]
-    wide = data["wide"]
-    written: list[str] = []
-    size = (11, 3.2) if wide else (8, 4)
-
-    fig, ax = plt.subplots(figsize=size)
+def _velocity_figure(directory: str, data: dict) -> list[str]:
+    speed = data["speed"]
+    fig, ax = plt.subplots(figsize=_panel_size(data))
     vals = speed[2]
-    tri = _field_panel(ax, speed, V * np.linalg.norm(vals, axis=1), "|v_f| [µm/s]")
+    tri = _field_panel(ax, speed, data["V"] * np.linalg.norm(vals, axis=1), "|v_f| [µm/s]")
     _streamlines(ax, tri, vals[:, 0], vals[:, 1])
-    _mark_cells(ax, specs)
+    _mark_cells(ax, data["cells"])
     ax.set_title("interstitial velocity in the gel")
-    _save(fig, directory, "gel_velocity.png", written)
+    return _save(fig, directory, "gel_velocity.png")
 
-    fig, ax = plt.subplots(figsize=size)
-    _field_panel(ax, pressure, S * pressure[2], "p [mPa]", cmap="coolwarm")
+
+def _pressure_figure(directory: str, data: dict) -> list[str]:
+    pressure = data["pressure"]
+    fig, ax = plt.subplots(figsize=_panel_size(data))
+    _field_panel(ax, pressure, data["S"] * pressure[2], "p [mPa]", cmap="coolwarm")
     ax.set_title("pore pressure in the gel")
-    _save(fig, directory, "gel_pressure.png", written)
+    return _save(fig, directory, "gel_pressure.png")
 
+
+def _displacement_figure(directory: str, data: dict) -> list[str]:
+    disp, vm, size = data["disp"], data["vm"], _panel_size(data)
     fig, axes = plt.subplots(2, 1, figsize=(size[0], 2 * size[1]))
-    _field_panel(axes[0], disp, L * np.linalg.norm(disp[2], axis=1), "|u_s| [µm]")
+    _field_panel(axes[0], disp, data["L"] * np.linalg.norm(disp[2], axis=1), "|u_s| [µm]")
     axes[0].set_title("network displacement")
-    _field_panel(axes[1], vm, S * vm[2], "von Mises of σ_s [mPa]", cmap="magma")
+    _field_panel(axes[1], vm, data["S"] * vm[2], "von Mises of σ_s [mPa]", cmap="magma")
     for ax in axes:
-        _mark_cells(ax, specs)
+        _mark_cells(ax, data["cells"])
     axes[1].set_title("von Mises stress of the network")
-    _save(fig, directory, "gel_displacement_von_mises.png", written)
+    return _save(fig, directory, "gel_displacement_von_mises.png")
 
-    profiles_figure(os.path.join(directory, "gamma1_profiles.png"), data["profiles"], V, L, data["label"],
-                    data["overlay"])
-    written.append("gamma1_profiles.png")
 
-    if cell is not None:
-        X, _, U = cell
-        t = np.linspace(0, 2 * np.pi, 200)
-        fig, ax = plt.subplots(figsize=(5, 5) if len(specs) == 1 else (8, 5))
-        # each cell's displacement relative to its own centroid, each cell outlined and labelled
-        cells_summary = data["cells_summary"]
-        for spec, cs in zip(specs, cells_summary):
-            centre, r = np.asarray(spec.centre), 0.5 * spec.diameter
-            mine = np.linalg.norm(X - centre, axis=1) <= r * (1 + 1e-6)
-            rel = U[mine] - np.asarray(cs["centroid_displacement"])
-            ax.quiver(X[mine, 0], X[mine, 1], L * rel[:, 0], L * rel[:, 1], angles="xy")
-            ax.plot(centre[0] + r * np.cos(t), centre[1] + r * np.sin(t), "k-", lw=0.5)
-            if len(specs) > 1:
-                ax.annotate(spec.name, centre + np.array([0, 1.15 * r]), ha="center", fontsize=8)
-        ax.set_aspect("equal")
-        ax.set_xlabel("x / L0")
-        ax.set_ylabel("y / L0")
-        ax.set_title("cell displacement relative to its centroid [µm, arrows not to scale]")
-        _save(fig, directory, "cell_displacement.png", written)
+def _profiles_task(directory: str, data: dict) -> list[str]:
+    profiles_figure(os.path.join(directory, "gamma1_profiles.png"), data["profiles"], data["V"], data["L"],
+                    data["label"], data["overlay"])
+    return ["gamma1_profiles.png"]
 
-        for spec in specs:
-            centre, r = np.asarray(spec.centre), 0.5 * spec.diameter
-            fig, axes = plt.subplots(2, 2, figsize=(9, 8))
-            for ax, (key, (Xg, Tg, values)) in zip(axes.ravel(), parts.items()):
-                # draw only the triangles that reach into the window; the colour scale still spans every
-                # vertex value (tripcolor scales by the value array, which stays whole)
-                lo, hi = centre - 4 * r, centre + 4 * r
-                corners = Xg[Tg]
-                inside = np.all((corners.max(axis=1) >= lo) & (corners.min(axis=1) <= hi), axis=1)
-                _field_panel(ax, (Xg, Tg[inside], values), S * values, "von Mises [mPa]", cmap="magma")
-                ax.set_xlim(centre[0] - 4 * r, centre[0] + 4 * r)
-                ax.set_ylim(centre[1] - 4 * r, centre[1] + 4 * r)
-                for other in specs:
-                    c2, r2 = np.asarray(other.centre), 0.5 * other.diameter
-                    ax.plot(c2[0] + r2 * np.cos(t), c2[1] + r2 * np.sin(t), "w-", lw=0.8)
-                ax.set_title({"pressure": "pressure  −p I", "brinkman": "Brinkman  φ_f σ_f",
-                              "network": "network  φ_s σ_s", "total": "total"}[key])
-            fig.suptitle("stress parts in the gel around the cell (von Mises)" if len(specs) == 1 else
-                         f"stress parts in the gel around {spec.name} (von Mises)")
-            fig.subplots_adjust(wspace=0.5, hspace=0.35)
-            _save(fig, directory, "cell_traction_parts.png" if len(specs) == 1
-                  else f"{spec.name}_traction_parts.png", written)
-    return written
+
+def _cell_displacement_figure(directory: str, data: dict) -> list[str]:
+    X, _, U = data["cell"]
+    specs, t = data["cells"], np.linspace(0, 2 * np.pi, 200)
+    fig, ax = plt.subplots(figsize=(5, 5) if len(specs) == 1 else (8, 5))
+    # each cell's displacement relative to its own centroid, each cell outlined and labelled
+    for spec, cs in zip(specs, data["cells_summary"]):
+        centre, r = np.asarray(spec.centre), 0.5 * spec.diameter
+        mine = np.linalg.norm(X - centre, axis=1) <= r * (1 + 1e-6)
+        rel = U[mine] - np.asarray(cs["centroid_displacement"])
+        ax.quiver(X[mine, 0], X[mine, 1], data["L"] * rel[:, 0], data["L"] * rel[:, 1], angles="xy")
+        ax.plot(centre[0] + r * np.cos(t), centre[1] + r * np.sin(t), "k-", lw=0.5)
+        if len(specs) > 1:
+            ax.annotate(spec.name, centre + np.array([0, 1.15 * r]), ha="center", fontsize=8)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x / L0")
+    ax.set_ylabel("y / L0")
+    ax.set_title("cell displacement relative to its centroid [µm, arrows not to scale]")
+    return _save(fig, directory, "cell_displacement.png")
+
+
+def _traction_parts_figure(directory: str, data: dict, spec) -> list[str]:
+    specs, t = data["cells"], np.linspace(0, 2 * np.pi, 200)
+    centre, r = np.asarray(spec.centre), 0.5 * spec.diameter
+    fig, axes = plt.subplots(2, 2, figsize=(9, 8))
+    for ax, (key, (Xg, Tg, values)) in zip(axes.ravel(), data["parts"].items()):
+        # draw only the triangles that reach into the window; the colour scale still spans every
+        # vertex value (the scale is set from the value array, which stays whole)
+        lo, hi = centre - 4 * r, centre + 4 * r
+        corners = Xg[Tg]
+        inside = np.all((corners.max(axis=1) >= lo) & (corners.min(axis=1) <= hi), axis=1)
+        _field_panel(ax, (Xg, Tg[inside], values), data["S"] * values, "von Mises [mPa]", cmap="magma")
+        ax.set_xlim(centre[0] - 4 * r, centre[0] + 4 * r)
+        ax.set_ylim(centre[1] - 4 * r, centre[1] + 4 * r)
+        for other in specs:
+            c2, r2 = np.asarray(other.centre), 0.5 * other.diameter
+            ax.plot(c2[0] + r2 * np.cos(t), c2[1] + r2 * np.sin(t), "w-", lw=0.8)
+        ax.set_title({"pressure": "pressure  −p I", "brinkman": "Brinkman  φ_f σ_f",
+                      "network": "network  φ_s σ_s", "total": "total"}[key])
+    fig.suptitle("stress parts in the gel around the cell (von Mises)" if len(specs) == 1 else
+                 f"stress parts in the gel around {spec.name} (von Mises)")
+    fig.subplots_adjust(wspace=0.5, hspace=0.35)
+    return _save(fig, directory, "cell_traction_parts.png" if len(specs) == 1 else f"{spec.name}_traction_parts.png")
+
+
+def _panel_size(data: dict) -> tuple[float, float]:
+    return (11, 3.2) if data["wide"] else (8, 4)
+
+
+def device_figure_tasks(directory: str, data: dict) -> list[tuple[float, typing.Callable[[], list[str]]]]:
+    """The figures of a device run as independent tasks ``(cost, draw)``, in the order their files
+    are listed; each ``draw()`` writes its PNG file and returns its name.  The costs are the
+    seconds each took at the default mesh (shear with a cell), used only to order the work."""
+    tasks = [(0.4, functools.partial(_velocity_figure, directory, data)),
+             (0.15, functools.partial(_pressure_figure, directory, data)),
+             (0.3, functools.partial(_displacement_figure, directory, data)),
+             (0.25, functools.partial(_profiles_task, directory, data))]
+    if data["cell"] is not None:
+        tasks.append((0.12, functools.partial(_cell_displacement_figure, directory, data)))
+        tasks += [(0.5, functools.partial(_traction_parts_figure, directory, data, spec)) for spec in data["cells"]]
+    return tasks
+
+
+def render_device_figures(directory: str, data: dict, processes: int = 1) -> list[str]:
+    """Draw the figures of a device run from gathered data (``gelcell.plots.figure_data``) into
+    ``directory``; returns the file names.  Pure numpy and matplotlib (also run in a worker process).
+
+    ``processes > 1`` draws them in that many forked processes (the figure worker does, on an
+    otherwise idle core): the figures are independent and the same pixels result.
+    """
+    tasks = device_figure_tasks(directory, data)
+    return [name for names in run_tasks([draw for _, draw in tasks], [cost for cost, _ in tasks], processes)
+            for name in names]
+
+
+#: the tasks of run_tasks, inherited by its forked processes (nothing is pickled but an index)
+_TASKS: list = []
+
+
+def _run_task(index: int):
+    return _TASKS[index]()
+
+
+def run_tasks(tasks: list, costs: list[float], processes: int) -> list:
+    """``[task() for task in tasks]``, by ``processes`` forked processes when more than one.
+
+    Dealt out one at a time, the costliest first (longest-processing-time order), so the
+    processes finish close together; the results keep the order of ``tasks``.  Forking needs a
+    process without MPI or threads: the figure worker, never the run itself.
+    """
+    processes = min(processes, len(tasks))
+    if processes < 2:
+        return [task() for task in tasks]
+    import multiprocessing
+    global _TASKS
+    order = sorted(range(len(tasks)), key=lambda i: -costs[i])
+    _TASKS = tasks
+    try:
+        with multiprocessing.get_context("fork").Pool(processes) as pool:
+            done = pool.map(_run_task, order, chunksize=1)
+    finally:
+        _TASKS = []
+    results = [None] * len(tasks)
+    for i, result in zip(order, done):
+        results[i] = result
+    return results
 
 
 def draw_transient_figures(directory: str, rows: list[dict], summary: dict, params, comm) -> list[str]:
@@ -266,7 +346,7 @@ def draw_transient_figures(directory: str, rows: list[dict], summary: dict, para
     ax.set_xlabel("t [s]")
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right", fontsize=8)
-    _save(fig, directory, "trajectory.png", written)
+    written += _save(fig, directory, "trajectory.png")
 
     fig, ax = plt.subplots(figsize=(8, 3.5))
     its = [r["iterations"] for r in rows[1:]]
@@ -276,7 +356,7 @@ def draw_transient_figures(directory: str, rows: list[dict], summary: dict, para
     mean = tr.get("iterations_mean")
     ax.set_title(f"iterations per window (mean {mean:.2f})" if mean is not None else "iterations per window")
     ax.grid(alpha=0.3, axis="y")
-    _save(fig, directory, "iterations.png", written)
+    written += _save(fig, directory, "iterations.png")
     return written
 
 
@@ -285,7 +365,8 @@ def _worker_main() -> int:
     print the JSON list of the file names written.  matplotlib is imported before the data
     arrives (the parent starts this process early, so that the import overlaps its solve)."""
     directory, data = pickle.load(sys.stdin.buffer)
-    names = render_device_figures(directory, data)
+    # the run waits for the figures once it has written its other files: use every core meanwhile
+    names = render_device_figures(directory, data, processes=len(os.sched_getaffinity(0)))
     sys.stdout.write(json.dumps(names) + "\n")
     sys.stdout.flush()
     return 0

@@ -4,7 +4,8 @@
 collective call); ``draw_figures`` draws them in this process.  A serial run
 may instead hand them to a :class:`FigureWorker`: a separate Python process
 started before the solve, which imports matplotlib while the run solves and
-draws while the run writes its other files (XDMF, profiles, records).
+draws while the run writes its other files (XDMF, profiles, records), the
+figures shared among forked processes, one per core, since the run then only waits.
 """
 
 from __future__ import annotations
@@ -81,8 +82,10 @@ class FigureWorker:
     def __init__(self):
         env = dict(os.environ, MPLBACKEND="Agg",
                    PYTHONPATH=os.pathsep.join(filter(None, [_ROOT, os.environ.get("PYTHONPATH")])))
+        # a process group of its own: close() stops the processes it forks to draw, too
         self.proc = subprocess.Popen([sys.executable, "-m", "gelcell.figures"], stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
+                                     start_new_session=True)
 
     def submit(self, directory: str, data: dict) -> None:
         stdin, self.proc.stdin = self.proc.stdin, None     # sent whole: communicate() must not flush it
@@ -116,9 +119,12 @@ class FigureWorker:
         return [str(n) for n in names]
 
     def close(self) -> None:
-        """Stop the worker if it still runs (an interrupted or failed run)."""
+        """Stop the worker and the processes it forked if they still run (an interrupted or failed run)."""
         if self.proc.poll() is None:
-            self.proc.kill()
+            try:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+            except (ProcessLookupError, PermissionError):
+                self.proc.kill()
         self.proc.wait()
         for stream in (self.proc.stdin, self.proc.stdout, self.proc.stderr):
             if stream is not None and not stream.closed:

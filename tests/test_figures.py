@@ -91,6 +91,7 @@ def test_the_worker_side_needs_neither_dolfinx_nor_mpi():
 def test_closing_a_worker_stops_it():
     from gelcell.plots import FigureWorker
     worker = FigureWorker()           # waits for data that never comes
+    assert os.getpgid(worker.proc.pid) == worker.proc.pid    # its group: close() stops what it forked
     worker.close()
     assert worker.proc.returncode is not None
 
@@ -130,3 +131,47 @@ def test_write_png_keeps_text_that_overhangs_the_figure(tmp_path):
     ink = np.flatnonzero(np.any(image < 255, axis=(0, 2)))
     assert image.shape[1] > 2 * _DPI                      # wider than the figure
     assert abs(ink[0] - pad) <= 1 and abs(image.shape[1] - 1 - ink[-1] - pad) <= 1   # the margin on both sides
+
+
+# -- drawing: the gouraud panel and the figures shared among processes -----------------------------
+def _render(fig):
+    buf = io.BytesIO()
+    fig.savefig(buf, format="rgba", dpi=50)
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def test_gouraud_draws_the_pixels_of_tripcolor():
+    import matplotlib.tri as mtri
+    from gelcell.figures import gouraud
+    rng = np.random.default_rng(3)
+    x, y = rng.uniform(-1, 2, 200), rng.uniform(0, 0.5, 200)
+    tri = mtri.Triangulation(x, y)
+    values = np.sin(3 * x) * y
+    images = []
+    for draw in (lambda ax, t: ax.tripcolor(t, values, shading="gouraud", cmap="magma"),
+                 lambda ax, t: gouraud(ax, t, values, "magma")):
+        fig, ax = plt.subplots(figsize=(4, 2))
+        plt.colorbar(draw(ax, tri), ax=ax)
+        images.append(_render(fig))
+    assert images[0] == images[1]
+
+
+def _square(i):
+    return i * i
+
+
+def _fails():
+    raise ValueError("task failed")
+
+
+@pytest.mark.skip_in_parallel          # forks: never from an MPI process
+def test_run_tasks_keeps_the_order_of_the_tasks_whatever_their_costs():
+    import functools
+    from gelcell.figures import run_tasks
+    tasks = [functools.partial(_square, i) for i in range(7)]
+    costs = [0.1, 0.9, 0.3, 0.3, 0.8, 0.0, 0.5]
+    assert run_tasks(tasks, costs, processes=2) == [i * i for i in range(7)]
+    assert run_tasks(tasks, costs, processes=1) == [i * i for i in range(7)]
+    with pytest.raises(ValueError, match="task failed"):
+        run_tasks(tasks[:2] + [_fails], costs[:3], processes=2)
