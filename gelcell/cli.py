@@ -23,7 +23,16 @@ import sys
 import traceback
 import typing
 
-from mpi4py import MPI
+# Started without mpirun, this process is an MPI singleton: Open MPI's default transport selection
+# would probe the high-speed network libraries (psm, psm2, libfabric), half of a 0.4 s MPI_Init, for a
+# process that talks to nobody.  Only for this process's MPI_Init: its children do not inherit it.
+_SINGLETON_PML = "OMPI_COMM_WORLD_SIZE" not in os.environ and "OMPI_MCA_pml" not in os.environ
+if _SINGLETON_PML:
+    os.environ["OMPI_MCA_pml"] = "ob1"
+from mpi4py import MPI  # noqa: E402
+
+if _SINGLETON_PML:
+    del os.environ["OMPI_MCA_pml"]
 
 from gelcell.parameters import CASES, CaseParameters, ParameterError
 
