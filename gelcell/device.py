@@ -221,9 +221,10 @@ def coupling_config(scheme: str = "serial", acceleration: str = "iqn-ils", *, li
     last 4 solves are kept (``time_windows_reused``; no effect on one solve,
     reused by a Ca sweep, see ``Device.solve(reuse=...)``).
     Time-dependent runs (``transient``): each window starts from the linear
-    extrapolation of the last two, each solve continues from the previous
-    iteration's state (``state_reload = "window"``: the field solvers' linear
-    path), and IQN-ILS keeps the secant columns of
+    extrapolation of the last two, every iteration solves from the window's
+    checkpoint (the library's ``state_reload = "iteration"``, so that each
+    solve is one function of its interface data; docs/transient.md measures
+    the alternative), and IQN-ILS keeps the secant columns of
     the last 40 windows (at most 500): for a fixed dt the windows share one
     interface operator, so after ~15 windows the kept columns span it and a
     window takes ~4 iterations instead of ~10 (measured, docs/transient.md).
@@ -261,10 +262,6 @@ def coupling_config(scheme: str = "serial", acceleration: str = "iqn-ils", *, li
               "convergence": [{"type": "relative", "limit": limit, "data": "*"}]}
     if transient:
         config["extrapolation_order"] = 1
-        # each solve continues from the previous iteration's state (the participants' advance() is
-        # idempotent within a window and their states only seed Newton), so that the gel and the cell
-        # take their linear path: one step with the kept factorisation per coupling iteration
-        config["state_reload"] = "window"
     for key, value in (overrides or {}).items():
         if key == "acceleration" and isinstance(value, typing.Mapping):
             if value.get("type", acc["type"]) != acc["type"]:
