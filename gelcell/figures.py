@@ -48,8 +48,8 @@ def _field_panel(ax, data, values, label, cmap="viridis"):
 
 def gouraud(ax, tri, values, cmap):
     """``ax.tripcolor(tri, values, shading="gouraud", cmap=cmap)``, the same pixels, without its
-    autoscaling pass, which converts every triangle to a Path (0.3 s of a run's figures) to find
-    the bounding box of the points, which tripcolor has already added to the data limits."""
+    autoscaling pass: that pass converts every triangle to a Path (0.3 s of a run's figures)
+    only to find the bounding box of the points, already added to the data limits."""
     m = TriMesh(tri, array=np.asarray(values), cmap=cmap, linewidths=(0.25,), edgecolors="none",
                 antialiaseds=False)
     m.autoscale_None()
@@ -159,6 +159,10 @@ def _mark_cells(ax, specs) -> None:
                         fontsize=6, color="w")
 
 
+def _panel_size(data: dict) -> tuple[float, float]:
+    return (11, 3.2) if data["wide"] else (8, 4)
+
+
 def _velocity_figure(directory: str, data: dict) -> list[str]:
     speed = data["speed"]
     fig, ax = plt.subplots(figsize=_panel_size(data))
@@ -238,10 +242,6 @@ def _traction_parts_figure(directory: str, data: dict, spec) -> list[str]:
                  f"stress parts in the gel around {spec.name} (von Mises)")
     fig.subplots_adjust(wspace=0.5, hspace=0.35)
     return _save(fig, directory, "cell_traction_parts.png" if len(specs) == 1 else f"{spec.name}_traction_parts.png")
-
-
-def _panel_size(data: dict) -> tuple[float, float]:
-    return (11, 3.2) if data["wide"] else (8, 4)
 
 
 def device_figure_tasks(directory: str, data: dict) -> list[tuple[float, typing.Callable[[], list[str]]]]:
