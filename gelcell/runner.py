@@ -361,7 +361,7 @@ def _write_outputs(tmp: str, run: CaseRun, summary: dict, comm, *, monolithic: b
         run.solver.scheme.write_records(os.path.join(tmp, "coupling"))
         written.append("coupling/")
     if data is not None:
-        written += _figures(tmp, data, worker)
+        written += collect_figures(tmp, data, worker)
     for name, value in (extra_json or {}).items():
         write_json_file(os.path.join(tmp, name), value, comm)
         written.append(name)
@@ -370,7 +370,7 @@ def _write_outputs(tmp: str, run: CaseRun, summary: dict, comm, *, monolithic: b
     return written
 
 
-def _figures(tmp: str, data: dict, worker: FigureWorker | None) -> list[str]:
+def collect_figures(tmp: str, data: dict, worker: FigureWorker | None) -> list[str]:
     """The figures drawn by ``worker``, or here if there is none or it failed (rank 0's data)."""
     if worker is not None:
         try:

@@ -612,7 +612,8 @@ def run_transient_case(params: CaseParameters, settings: TimeSettings, out: str 
 
     from femtools.io import atomic_directory
     from gelcell.output import DerivedFields, FieldSeries, write_json_file, write_profiles
-    from gelcell.runner import format_summary, partitioned_config, report
+    from gelcell.plots import FigureWorker, figure_data
+    from gelcell.runner import collect_figures, format_summary, partitioned_config, report
     from gelcell.validity import model_warnings
 
     stream = stream or sys.stdout
@@ -639,6 +640,7 @@ def run_transient_case(params: CaseParameters, settings: TimeSettings, out: str 
                         inflow=settings.waveform)
         backend = PartitionedBackend(device, config, comm)
     setup_time = time.perf_counter() - t0
+    worker: FigureWorker | None = None        # draws the device figures of a serial run (below)
 
     def solve_and_write(work_dir: str | None) -> dict:
         run = TransientRun(backend, params, settings, comm, work_dir, say)
@@ -673,6 +675,11 @@ def run_transient_case(params: CaseParameters, settings: TimeSettings, out: str 
             return summary
         written = ["summary.json", "timeseries.csv", "timeseries.h5"]
         _write_timeseries(work_dir, state["rows"], params, comm)
+        # the final state's profiles and figure data first: the worker draws while the frames are written
+        profiles = write_profiles(work_dir, backend.fields, comm)
+        data = figure_data(backend.fields, profiles, summary) if figures else None
+        if worker is not None and data is not None:
+            worker.submit(work_dir, data)
         if fields:
             derived = DerivedFields(backend.fields)
             series = FieldSeries(work_dir, derived)
@@ -684,15 +691,14 @@ def run_transient_case(params: CaseParameters, settings: TimeSettings, out: str 
             finally:
                 series.close()
             written += series.names
-        profiles = write_profiles(work_dir, backend.fields, comm)
         written += [f"{k.lower()}_profiles.{ext}" for k in profiles for ext in ("h5", "csv")]
         backend.write_records(os.path.join(work_dir, "coupling"))
         if not monolithic:
             written.append("coupling/")
         if figures:
             from gelcell.figures import draw_transient_figures
-            from gelcell.plots import draw_figures
-            written += draw_figures(work_dir, backend.fields, profiles, summary)
+            if data is not None:
+                written += collect_figures(work_dir, data, worker)
             written += draw_transient_figures(work_dir, state["rows"], summary, params, comm)
         summary["files"] = written
         write_json_file(os.path.join(work_dir, "summary.json"), summary, comm)
@@ -705,7 +711,17 @@ def run_transient_case(params: CaseParameters, settings: TimeSettings, out: str 
 
     if out is None:
         return solve_and_write(None)
-    with atomic_directory(out, comm, partial=True) as work_dir:
-        summary = solve_and_write(work_dir)
+    # a serial run's device figures are drawn by a second process, which imports matplotlib meanwhile
+    worker = FigureWorker() if figures and FigureWorker.use_worker(comm) else None
+    try:
+        with atomic_directory(out, comm, partial=True) as work_dir:
+            try:
+                summary = solve_and_write(work_dir)
+            finally:
+                if worker is not None:
+                    worker.close()          # before the directory is promoted or left as DIR.partial
+    finally:
+        if worker is not None:
+            worker.close()
     say(f"wrote {os.path.abspath(out)}: " + ", ".join(summary["files"]))
     return summary

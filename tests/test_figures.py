@@ -1,4 +1,4 @@
-"""The figures: the PNG writer (one rendering, cropped to what is drawn plus the margin) and the worker process that draws a serial run's figures."""
+"""The figures: the PNG writer (one rendering, cropped to what is drawn plus the margin) and the worker process that draws a serial run's figures (steady and time-dependent)."""
 
 import io
 import os
@@ -175,3 +175,24 @@ def test_run_tasks_keeps_the_order_of_the_tasks_whatever_their_costs():
     assert run_tasks(tasks, costs, processes=1) == [i * i for i in range(7)]
     with pytest.raises(ValueError, match="task failed"):
         run_tasks(tasks[:2] + [_fails], costs[:3], processes=2)
+
+
+def _run_transient(out, monkeypatch, worker: str):
+    from transient_cases import case, tau
+    from gelcell.timesettings import TimeSettings
+    from gelcell.transient import run_transient_case
+    monkeypatch.setenv("GELCELL_FIGURE_WORKER", worker)
+    params = case("shear")
+    settings = TimeSettings(transient=True, dt=tau(params) / 40, t_end=2 * tau(params) / 40)
+    return run_transient_case(params, settings, str(out), fields=False, stream=io.StringIO())
+
+
+@pytest.mark.skip_in_parallel
+def test_worker_draws_a_time_dependent_run_s_figures_as_the_run_itself(tmp_path, monkeypatch):
+    summary = _run_transient(tmp_path / "worker", monkeypatch, "1")
+    _run_transient(tmp_path / "here", monkeypatch, "0")
+    a, b = _pixels(tmp_path / "worker"), _pixels(tmp_path / "here")
+    assert sorted(a) == sorted(b) and len(a) == 8, sorted(a)
+    assert sorted(a) == sorted(f for f in summary["files"] if f.endswith(".png"))
+    for name in a:
+        assert np.array_equal(a[name], b[name]), name
