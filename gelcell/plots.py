@@ -1,8 +1,9 @@
 """Figures of a device run: the fields gathered on rank 0, drawn by ``gelcell.figures``.
 
 ``figure_data`` gathers everything a figure shows into plain arrays (a
-collective call); ``draw_figures`` draws them in this process.  A serial run
-may instead hand them to a :class:`FigureWorker`: a separate Python process
+collective call); ``gelcell.figures.render_device_figures`` draws them on rank 0
+(``gelcell.runner.collect_figures``).  A serial run may instead hand them to a
+:class:`FigureWorker`: a separate Python process
 started before the solve, which imports matplotlib while the run solves and
 draws while the run writes its other files (XDMF, profiles, records), the
 figures shared among forked processes, one per core, since the run then only waits.
@@ -22,7 +23,7 @@ import types
 from gelcell.output import DerivedFields, P1Gather
 from gelcell.results import DeviceFields
 
-__all__ = ["draw_figures", "figure_data", "FigureWorker", "FigureWorkerError"]
+__all__ = ["figure_data", "FigureWorker", "FigureWorkerError"]
 
 #: the package's parent directory, so that the worker imports this very gelcell
 _ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -55,14 +56,6 @@ def figure_data(fields: DeviceFields, profiles: dict, summary: dict, overlay: di
                                      diameter=float(c.diameter)) for c in fields.cells],
         cells_summary=summary.get("cells") or [{"centroid_displacement": summary["cell.centroid_displacement"]}])
     return data
-
-
-def draw_figures(directory: str, fields: DeviceFields, profiles: dict, summary: dict,
-                 overlay: dict | None = None, derived: DerivedFields | None = None) -> list[str]:
-    """Draw every figure of a run into ``directory`` in this process; returns the file names (rank 0)."""
-    from gelcell.figures import render_device_figures      # imports matplotlib (~0.5 s): only here
-    data = figure_data(fields, profiles, summary, overlay, derived)
-    return [] if data is None else render_device_figures(directory, data)
 
 
 class FigureWorkerError(RuntimeError):
