@@ -11,6 +11,7 @@ figures shared among forked processes, one per core, since the run then only wai
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import pickle
@@ -23,7 +24,7 @@ import types
 from gelcell.output import DerivedFields, P1Gather
 from gelcell.results import DeviceFields
 
-__all__ = ["figure_data", "FigureWorker", "FigureWorkerError"]
+__all__ = ["figure_data", "FigureWorker", "FigureWorkerError", "figure_worker"]
 
 #: the package's parent directory, so that the worker imports this very gelcell
 _ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -128,3 +129,15 @@ class FigureWorker:
         """A worker for serial runs from the main thread (it sets a signal) unless ``GELCELL_FIGURE_WORKER=0``."""
         return (comm.size == 1 and threading.current_thread() is threading.main_thread()
                 and os.environ.get("GELCELL_FIGURE_WORKER", "1").strip() != "0")
+
+
+@contextlib.contextmanager
+def figure_worker(wanted: bool, comm):
+    """A started :class:`FigureWorker` if ``wanted`` and :meth:`FigureWorker.use_worker` (else None),
+    stopped when the block is left, however it is left."""
+    worker = FigureWorker() if wanted and FigureWorker.use_worker(comm) else None
+    try:
+        yield worker
+    finally:
+        if worker is not None:
+            worker.close()

@@ -25,7 +25,7 @@ from gelcell.geometry import build_device
 from gelcell.monolithic import MonolithicCoefficients, MonolithicSolver
 from gelcell.output import DerivedFields, write_fields, write_json_file, write_profiles
 from gelcell.parameters import CaseParameters, ParameterError
-from gelcell.plots import FigureWorker, FigureWorkerError, figure_data
+from gelcell.plots import FigureWorker, FigureWorkerError, figure_data, figure_worker
 from gelcell.results import DeviceFields, fields_from_device, fields_from_monolithic, summarize
 from gelcell.validity import check_case, model_warnings
 
@@ -403,8 +403,7 @@ def run_case(params: CaseParameters, out: str | None, *, monolithic: bool = Fals
     say(f"gelcell: {device}, {'without cell' if not n_cells else 'with cell' if n_cells == 1 else f'{n_cells} cells'}, "
         f"{'monolithic' if monolithic else f'partitioned ({scheme}, {acceleration})'}")
     # a serial run draws its figures in a second process, which imports matplotlib while this one solves
-    worker = FigureWorker() if out is not None and figures and FigureWorker.use_worker(comm) else None
-    try:
+    with figure_worker(out is not None and figures, comm) as worker:
         if monolithic:
             run = solve_monolithic(params, comm)
         else:
@@ -426,8 +425,5 @@ def run_case(params: CaseParameters, out: str | None, *, monolithic: bool = Fals
             finally:
                 if worker is not None:
                     worker.close()          # before the directory is promoted or removed
-    finally:
-        if worker is not None:
-            worker.close()
     say(f"wrote {shown_path or os.path.abspath(out)}: " + ", ".join(written))
     return summary

@@ -612,7 +612,7 @@ def run_transient_case(params: CaseParameters, settings: TimeSettings, out: str 
 
     from femtools.io import atomic_directory
     from gelcell.output import DerivedFields, FieldSeries, write_json_file, write_profiles
-    from gelcell.plots import FigureWorker, figure_data
+    from gelcell.plots import FigureWorker, figure_data, figure_worker
     from gelcell.runner import collect_figures, format_summary, partitioned_config, report
     from gelcell.validity import model_warnings
 
@@ -712,16 +712,12 @@ def run_transient_case(params: CaseParameters, settings: TimeSettings, out: str 
     if out is None:
         return solve_and_write(None)
     # a serial run's device figures are drawn by a second process, which imports matplotlib meanwhile
-    worker = FigureWorker() if figures and FigureWorker.use_worker(comm) else None
-    try:
+    with figure_worker(figures, comm) as worker:
         with atomic_directory(out, comm, partial=True) as work_dir:
             try:
                 summary = solve_and_write(work_dir)
             finally:
                 if worker is not None:
                     worker.close()          # before the directory is promoted or left as DIR.partial
-    finally:
-        if worker is not None:
-            worker.close()
     say(f"wrote {os.path.abspath(out)}: " + ", ".join(summary["files"]))
     return summary

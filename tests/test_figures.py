@@ -73,7 +73,7 @@ def test_a_failed_worker_leaves_the_figures_to_the_run(tmp_path, monkeypatch, ca
             self.proc = subprocess.Popen([sys.executable, "-c", "import sys; sys.stderr.write('boom'); sys.exit(3)"],
                                          stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
 
-    monkeypatch.setattr("gelcell.runner.FigureWorker", BrokenWorker)
+    monkeypatch.setattr("gelcell.plots.FigureWorker", BrokenWorker)
     summary = _run(tmp_path / "run", monkeypatch, "1")
     assert "figure worker failed (exit 3): boom" in capfd.readouterr().err
     pngs = [f for f in summary["files"] if f.endswith(".png")]
