@@ -9,7 +9,10 @@ from mpi4py import MPI
 import ufl
 from dolfinx import fem
 
-from femtools import continuum
+from femtools import continuum, jitcache
+
+# every field solver and the monolithic reference import this module after dolfinx (and so ffcx)
+jitcache.install()
 
 __all__ = ["integrate", "owned_values", "global_max", "interpolate", "von_mises",
            "green_lagrange", "quadrature_measure"]

@@ -55,3 +55,45 @@ def test_new_parameter_values_compile_nothing(shared_tmp_path, compilations, mon
     _run(new, str(shared_tmp_path / "new"), monolithic=monolithic)
     compiled = COMM.allreduce(len(compilations), op=MPI.SUM)
     assert compiled == 0, f"new parameter values compiled {compilations}"
+
+
+def test_a_cached_form_loads_without_listing_the_cache(tmp_path, monkeypatch):
+    """femtools.jitcache: a compiled form is loaded by its file name, not found by listing the cache.
+
+    FFCx's own look-up builds an ``importlib.machinery.FileFinder`` on the cache
+    directory, which lists the directory (thousands of files on a machine that
+    has compiled many forms).  In an empty cache the first ``fem.form`` still
+    compiles through FFCx; the second finds the finished module and must not
+    build a finder.  Both forms assemble the exact integral.
+    """
+    import importlib.machinery
+
+    import ufl
+    from dolfinx import fem, mesh
+
+    from femtools import jitcache
+
+    assert jitcache.install() and jitcache.installed()
+    cache = tmp_path / f"rank{COMM.rank}"
+    msh = mesh.create_unit_square(MPI.COMM_SELF, 2, 2)
+    x = ufl.SpatialCoordinate(msh)
+    integrand = (x[0] ** 3 + 2.0 * x[1]) * ufl.dx        # int over the unit square = 1/4 + 1
+
+    finders: list[str] = []
+    original_finder = importlib.machinery.FileFinder
+
+    class RecordingFinder(original_finder):
+        def __init__(self, path, *loaders):
+            finders.append(str(path))
+            super().__init__(path, *loaders)
+
+    monkeypatch.setattr(importlib.machinery, "FileFinder", RecordingFinder)
+    values = []
+    for _ in range(2):
+        form = fem.form(integrand, jit_params={"cache_dir": str(cache)})
+        values.append(fem.assemble_scalar(form))
+        if not values[1:]:
+            assert str(cache) in finders, "the first form was not compiled through FFCx"
+            finders.clear()
+    assert finders == [], f"the cached form was looked up by listing {finders}"
+    assert values == pytest.approx([1.25, 1.25], rel=1e-13)
