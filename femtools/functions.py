@@ -7,14 +7,14 @@ import numpy as np
 from mpi4py import MPI
 
 import ufl
-from dolfinx import fem
+from dolfinx import fem, la
 
 from femtools import continuum, jitcache
 
 # every field solver and the monolithic reference import this module after dolfinx (and so ffcx)
 jitcache.install()
 
-__all__ = ["integrate", "owned_values", "global_max", "interpolate", "von_mises",
+__all__ = ["integrate", "owned_values", "global_max", "interpolate", "NodalAverage", "von_mises",
            "green_lagrange", "quadrature_measure"]
 
 
@@ -64,3 +64,48 @@ def quadrature_measure(kind: str, msh, subdomain_data=None, degree: int = 4):
     """
     return ufl.Measure(kind, domain=msh, subdomain_data=subdomain_data,
                        metadata={"quadrature_degree": degree})
+
+
+class NodalAverage:
+    """Nodal values of a cellwise (discontinuous) expression in a continuous Lagrange space ``V``.
+
+    Interpolating such an expression straight into ``V`` leaves at each node
+    shared by several cells the value of whichever cell comes last, which
+    depends on the cell order and so on the partition.  Here every cell
+    evaluates it at its own nodes (a discontinuous space of the same element,
+    whose interpolation points are ``V``'s) and each node takes the mean over
+    the cells around it, on any number of ranks:
+
+        f(x_i) = (1/|K_i|) sum_{K in K_i} e|_K(x_i),   K_i the cells with node i.
+
+    A continuous expression is reproduced exactly (every cell gives the same
+    value).  ``expression`` arguments of ``__call__`` are ``fem.Expression``s
+    compiled at ``V.element.interpolation_points()``.
+    """
+
+    def __init__(self, V: fem.FunctionSpace):
+        msh = V.mesh
+        family, degree = V.ufl_element().family(), V.ufl_element().degree()
+        if V.dofmap.index_map_bs != 1 or family not in ("Lagrange", "P", "CG", "Q"):
+            raise ValueError(f"NodalAverage: V must be a scalar continuous Lagrange space, got {V.ufl_element()}")
+        self.V = V
+        self._cellwise = fem.Function(fem.FunctionSpace(msh, ("DG", degree)))
+        n_cells = msh.topology.index_map(msh.topology.dim).size_local
+        width = V.dofmap.dof_layout.num_dofs
+        self._dofs = V.dofmap.list.array.reshape(-1, width)[:n_cells].ravel()
+        self._cell_dofs = self._cellwise.function_space.dofmap.list.array.reshape(-1, width)[:n_cells].ravel()
+        count = fem.Function(V)
+        np.add.at(count.x.array, self._dofs, 1.0)
+        count.x.scatter_reverse(la.ScatterMode.add)
+        count.x.scatter_forward()
+        self._count = count.x.array.copy()
+
+    def __call__(self, expression: fem.Expression, out: fem.Function) -> fem.Function:
+        """``out`` (a Function of ``V``) = the nodal mean of ``expression`` over the cells around each node."""
+        self._cellwise.interpolate(expression)
+        out.x.array[:] = 0.0
+        np.add.at(out.x.array, self._dofs, self._cellwise.x.array[self._cell_dofs])
+        out.x.scatter_reverse(la.ScatterMode.add)
+        out.x.array[:] /= self._count
+        out.x.scatter_forward()
+        return out

@@ -24,7 +24,7 @@ from dolfinx import fem
 
 import cell.forms as cell_forms
 import gel.forms as gel_forms
-from femtools.functions import interpolate, von_mises
+from femtools.functions import NodalAverage, interpolate, von_mises
 from femtools.io import _jsonable
 from femtools.xdmf import NodalXDMF
 from gelcell.results import DeviceFields, gamma_profiles
@@ -44,9 +44,10 @@ class DerivedFields:
     """The fields written for ParaView and drawn in the figures, paper units, compiled once.
 
     gel: v_f, u_s, p, the network's von Mises stress and the von Mises
-    measures of the three stress parts and their sum (interpolated at the P2
-    nodes); cell: u_c, von Mises strain and stress; fluid: V, P and, with
-    finite kinematics, the mesh displacement to its current domain.  The stress
+    measures of the three stress parts and their sum; cell: u_c, von Mises
+    strain and stress (von Mises measures at the P2 nodes, each the mean over
+    the cells around the node: ``femtools.functions.NodalAverage``, the same on
+    any partition); fluid: V, P and, with finite kinematics, the mesh displacement to its current domain.  The stress
     and displacement units enter as Constants, so no parameter value makes
     anything compile again; ``update()`` recomputes every field from the
     (possibly changed) functions of ``fields``.
@@ -76,6 +77,8 @@ class DerivedFields:
                     "u_s": fem.Function(u.function_space, name="u_s"),
                     "p": fem.Function(pp.function_space, name="p")}
         self._expressions = []
+        # von Mises measures jump between cells: a node takes the mean of its cells, on any partition
+        self._averages = {gm: NodalAverage(Q2)}
         for name, expr in scalars.items():
             self.gel[name] = fem.Function(Q2, name=name)
             self._expressions.append((self.gel[name],
@@ -85,6 +88,7 @@ class DerivedFields:
             uc, cm = fields.cell_displacement, fields.cell_mesh
             k = lambda v: fem.Constant(cm, float(v))  # noqa: E731
             Qc = fem.FunctionSpace(cm, ("Lagrange", 2))
+            self._averages[cm] = NodalAverage(Qc)
             sc, dc = k(p.stress_scale), k(p.displacement_scale)
             sigma = cell_forms.cauchy_stress(uc, k(p.mu_c), k(p.lambda_c), dc, sc)
             self.cell = {"u_c": fem.Function(uc.function_space, name="u_c"),
@@ -107,8 +111,7 @@ class DerivedFields:
         if self.cell is not None:
             self.cell["u_c"].x.array[:] = d * f.cell_displacement.x.array
         for dst, expression in self._expressions:
-            dst.interpolate(expression)
-            dst.x.scatter_forward()
+            self._averages[dst.function_space.mesh](expression, dst)
 
     def groups(self) -> list[tuple[str, object, list]]:
         """``(file name, mesh, functions)`` of each XDMF file."""
@@ -120,7 +123,7 @@ class DerivedFields:
 
 
 def derived_gel_fields(fields: DeviceFields) -> dict[str, fem.Function]:
-    """Gel fields in paper units, on continuous P2 (von Mises interpolated at the nodes)."""
+    """Gel fields in paper units, on continuous P2 (von Mises: the mean of the cells around each node)."""
     return DerivedFields(fields).gel
 
 

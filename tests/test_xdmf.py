@@ -118,3 +118,68 @@ def test_nodal_xdmf_refuses_a_function_of_another_mesh(tmp_path):
     writer = NodalXDMF(str(tmp_path / f"a{MPI.COMM_WORLD.rank}.xdmf"), a)
     with pytest.raises(ValueError, match="not a function on this file's mesh"):
         writer.nodal_values(fem.Function(fem.FunctionSpace(b, ("Lagrange", 1)), name="f"))
+
+
+def test_nodal_average_of_a_cellwise_expression_is_partition_independent():
+    """femtools.functions.NodalAverage on 1 and 2 ranks (the same mesh on each rank alone as the reference).
+
+    A continuous expression comes out as its P2 interpolant (exactly); the
+    cellwise gradient of a P2 field, discontinuous between cells, comes out as
+    the mean over the cells around each node: the value at the centre node of
+    the unit square (8 cells meet there in this diagonal mesh) is checked
+    against that mean computed by hand, and the field does not depend on the
+    partition.
+    """
+    from dolfinx import mesh
+
+    from femtools.functions import NodalAverage
+
+    def solve(comm):
+        msh = mesh.create_unit_square(comm, 4, 4)
+        V = fem.FunctionSpace(msh, ("Lagrange", 2))
+        x = ufl.SpatialCoordinate(msh)
+        g = fem.Function(V)
+        g.interpolate(lambda p: np.sin(3 * p[0]) * p[1] ** 2 + p[0] ** 3)
+        points = V.element.interpolation_points()
+        average = NodalAverage(V)
+        smooth = average(fem.Expression(x[0] * x[1] ** 2, points), fem.Function(V))
+        exact = fem.Function(V)
+        exact.interpolate(lambda p: p[0] * p[1] ** 2)
+        assert np.allclose(smooth.x.array, exact.x.array, rtol=0, atol=1e-14)
+        rough = average(fem.Expression(g.dx(0), points), fem.Function(V))
+        n_owned = V.dofmap.index_map.size_local
+        xs = V.tabulate_dof_coordinates()[:n_owned, :2]
+        gathered = comm.gather((xs, rough.x.array[:n_owned]), root=0)
+        if comm.rank != 0:
+            return None
+        xs, values = (np.concatenate(a) for a in zip(*gathered))
+        order = np.lexsort((xs[:, 1], xs[:, 0]))
+        return xs[order], values[order]
+
+    reference = solve(MPI.COMM_SELF)
+    ours = solve(MPI.COMM_WORLD)
+    if MPI.COMM_WORLD.rank == 0:
+        np.testing.assert_array_equal(ours[0], reference[0])
+        np.testing.assert_allclose(ours[1], reference[1], rtol=0, atol=1e-12 * np.abs(reference[1]).max())
+        # at (0.5, 0.5): d/dx of the P2 interpolant, one-sided in each of the cells around it
+        centre = np.flatnonzero(np.all(np.isclose(reference[0], 0.5), axis=1))[0]
+        assert abs(reference[1][centre] - _mean_of_cellwise_dx_at_centre()) < 1e-12
+
+
+def _mean_of_cellwise_dx_at_centre() -> float:
+    """The mean over the cells around (0.5, 0.5) of d/dx of the P2 interpolant there (serial, by hand)."""
+    from dolfinx import mesh
+    from dolfinx.geometry import BoundingBoxTree, compute_collisions, compute_colliding_cells
+
+    msh = mesh.create_unit_square(MPI.COMM_SELF, 4, 4)
+    V = fem.FunctionSpace(msh, ("Lagrange", 2))
+    g = fem.Function(V)
+    g.interpolate(lambda p: np.sin(3 * p[0]) * p[1] ** 2 + p[0] ** 3)
+    D = fem.FunctionSpace(msh, ("DG", 1))
+    dx = fem.Function(D)
+    dx.interpolate(fem.Expression(g.dx(0), D.element.interpolation_points()))
+    point = np.array([[0.5, 0.5, 0.0]])
+    tree = BoundingBoxTree(msh, 2)
+    cells = compute_colliding_cells(msh, compute_collisions(tree, point), point).links(0)
+    assert len(cells) >= 4
+    return float(np.mean([dx.eval(point, np.array([c], dtype=np.int32))[0] for c in cells]))
