@@ -14,7 +14,7 @@ from femtools import continuum, jitcache
 # every field solver and the monolithic reference import this module after dolfinx (and so ffcx)
 jitcache.install()
 
-__all__ = ["integrate", "owned_values", "global_max", "interpolate", "NodalAverage", "von_mises",
+__all__ = ["integrate", "gather_rows", "owned_values", "global_max", "interpolate", "NodalAverage", "von_mises",
            "green_lagrange", "quadrature_measure"]
 
 
@@ -23,6 +23,22 @@ def integrate(expr, measure, comm: MPI.Comm | None = None) -> float:
     form = fem.form(expr * measure)
     comm = comm or form.mesh.comm
     return comm.allreduce(fem.assemble_scalar(form), op=MPI.SUM)
+
+
+def gather_rows(comm: MPI.Comm, start: int, rows: np.ndarray, total: int, root: int = 0) -> np.ndarray | None:
+    """The rows ``rows`` of each rank, placed at its offset ``start`` in a ``total``-row array on ``root``.
+
+    For owned entries of an index map (rank r owns the global indices
+    [start_r, start_r + len(rows_r))): the global array in index order on
+    ``root``, ``None`` on the other ranks.
+    """
+    parts = comm.gather((start, np.asarray(rows)), root=root)
+    if comm.rank != root:
+        return None
+    out = np.zeros((total,) + parts[0][1].shape[1:], dtype=parts[0][1].dtype)
+    for first, piece in parts:
+        out[first:first + len(piece)] = piece
+    return out
 
 
 def owned_values(u: fem.Function) -> np.ndarray:

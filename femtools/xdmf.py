@@ -23,9 +23,9 @@ import xml.sax.saxutils
 
 import numpy as np
 
-from mpi4py import MPI
-
 from dolfinx import fem, io
+
+from femtools.functions import gather_rows
 
 __all__ = ["NodalXDMF"]
 
@@ -114,7 +114,7 @@ class NodalXDMF:
     # -- writing ---------------------------------------------------------------
     def write(self, functions, t: float) -> None:
         """Append ``functions`` at time ``t`` (collective); the XML is rewritten whole."""
-        parts = [self.comm.gather((self._start, self.nodal_values(f)), root=0) for f in functions]
+        parts = [gather_rows(self.comm, self._start, self.nodal_values(f), self._n) for f in functions]
         error = None
         if self.comm.rank == 0:
             try:
@@ -131,11 +131,8 @@ class NodalXDMF:
         time_text = repr(t)[:-2] if repr(t).endswith(".0") else repr(t)     # 0 as dolfinx writes it, not 0.0
         time_key = time_text.replace(".", "_")
         with h5py.File(self.h5_path, "a") as h5:
-            for f, pieces in zip(functions, parts):
-                columns = pieces[0][1].shape[1]
-                data = np.empty((self._n, columns))
-                for start, values in pieces:
-                    data[start:start + len(values)] = values
+            for f, data in zip(functions, parts):
+                columns = data.shape[1]
                 dataset = f"/Function/{f.name}/{time_key}"
                 h5.create_dataset(dataset, data=data)
                 kind = "Scalar" if columns == 1 else "Vector"

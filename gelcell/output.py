@@ -24,12 +24,12 @@ from dolfinx import fem
 
 import cell.forms as cell_forms
 import gel.forms as gel_forms
-from femtools.functions import NodalAverage, interpolate, von_mises
+from femtools.functions import NodalAverage, gather_rows, von_mises
 from femtools.io import _jsonable
 from femtools.xdmf import NodalXDMF
 from gelcell.results import DeviceFields, gamma_profiles
 
-__all__ = ["DerivedFields", "FieldSeries", "write_fields", "write_profiles", "write_json_file", "gather_p1",
+__all__ = ["DerivedFields", "FieldSeries", "write_fields", "write_profiles", "write_json_file",
            "P1Gather"]
 
 
@@ -194,8 +194,7 @@ class P1Gather:
 
     ``gather(f)`` interpolates a Function (any Lagrange space on this mesh,
     scalar or vector; no form compilation) into P1 and returns
-    ``(x, triangles, values)`` on rank 0 and ``None`` elsewhere, as
-    :func:`gather_p1`.
+    ``(x, triangles, values)`` on rank 0 and ``None`` elsewhere.
     """
 
     def __init__(self, msh):
@@ -209,13 +208,9 @@ class P1Gather:
         gidx = imap.local_to_global(np.arange(n_owned + imap.num_ghosts, dtype=np.int32))
         n_cells = msh.topology.index_map(2).size_local
         tri = gidx[Q.dofmap.list.array.reshape(-1, 3)[:n_cells]]
-        parts = self.comm.gather((self._start, x, tri), root=0)
-        self.x = self.triangles = None
-        if self.comm.rank == 0:
-            self.x = np.zeros((self._n, 2))
-            for start, xs, _ in parts:
-                self.x[start:start + len(xs)] = xs
-            self.triangles = np.vstack([t for *_, t in parts])
+        self.x = gather_rows(self.comm, self._start, x, self._n)
+        triangles = self.comm.gather(tri, root=0)
+        self.triangles = np.vstack(triangles) if self.comm.rank == 0 else None
 
     def _space(self, vector: bool) -> fem.FunctionSpace:
         if vector not in self._spaces:
@@ -229,27 +224,7 @@ class P1Gather:
         g = fem.Function(Q)
         g.interpolate(f)
         bs = Q.dofmap.index_map_bs
-        vals = g.x.array.reshape(-1, bs)[:self._n_owned]
-        parts = self.comm.gather((self._start, vals), root=0)
+        V = gather_rows(self.comm, self._start, g.x.array.reshape(-1, bs)[:self._n_owned], self._n)
         if self.comm.rank != 0:
             return None
-        V = np.zeros((self._n, bs))
-        for start, vs in parts:
-            V[start:start + len(vs)] = vs
         return self.x, self.triangles, (V[:, 0] if bs == 1 else V)
-
-
-def gather_p1(f: fem.Function | None, expr=None, msh=None):
-    """Vertex coordinates, triangles and vertex values of a field, gathered on rank 0.
-
-    ``f`` (or a UFL ``expr`` on ``msh``) is interpolated into P1; vector
-    fields keep their components.  Returns ``(x, triangles, values)`` on
-    rank 0 and ``None`` elsewhere.  For several fields on one mesh use
-    :class:`P1Gather`, which gathers the mesh once.
-    """
-    if expr is not None:
-        msh = msh or f.function_space.mesh
-        shape = expr.ufl_shape
-        Q = fem.VectorFunctionSpace(msh, ("Lagrange", 1)) if shape else fem.FunctionSpace(msh, ("Lagrange", 1))
-        f = interpolate(expr, Q)
-    return P1Gather(f.function_space.mesh).gather(f)
