@@ -232,7 +232,9 @@ def measure_fixed_costs(repeats: int, timeout: float) -> dict:
     """Median process walls of the phases of ``gelcell run shear`` (warm caches: one run first).
 
     interpreter (``python -c pass``), imports of the run path, the run without figures and the
-    whole run; setup (meshing, forms, matrices) and the solves from the run's summary.json.
+    whole run; setup (meshing, forms, matrices) and the solves from the summary.json of the run
+    without figures (in the whole run the figure worker imports matplotlib on the other core
+    meanwhile, which slows the solves on a loaded machine).
     """
     import tempfile
     py = sys.executable
@@ -246,9 +248,9 @@ def measure_fixed_costs(repeats: int, timeout: float) -> dict:
             walls["interpreter"].append(_wall([py, "-c", "pass"], timeout))
             walls["imports"].append(_wall([py, "-c", "import gelcell.cli, gelcell.runner"], timeout))
             walls["run_no_figures"].append(_wall(run + ["--no-figures"], timeout))
-            walls["run"].append(_wall(run, timeout))
-            with open(os.path.join(out, "summary.json")) as fh:
+            with open(os.path.join(out, "summary.json")) as fh:     # the phases of the run they add up to
                 timing.append(json.load(fh)["timing"])
+            walls["run"].append(_wall(run, timeout))
     med = {k: float(np.median(v)) for k, v in walls.items()}
     med["setup"] = float(np.median([t["setup"] for t in timing]))
     med["solves"] = float(np.median([t["coupling"] for t in timing]))
