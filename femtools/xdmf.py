@@ -90,9 +90,8 @@ class NodalXDMF:
 
     def _is_node_space(self, V: fem.FunctionSpace) -> bool:
         """Whether ``V`` is a (collapsed) Lagrange space of the coordinate element's degree."""
-        e = V.ufl_element()
-        family = e.sub_elements()[0].family() if e.family() == "VectorElement" or e.num_sub_elements() else e.family()
-        return (family in ("Lagrange", "P", "CG", "Q") and e.degree() == self.msh.geometry.cmap.degree
+        e = V.ufl_element()        # a VectorElement reports its sub-element's family, a MixedElement "Mixed"
+        return (e.family() in ("Lagrange", "P", "CG", "Q") and e.degree() == self.msh.geometry.cmap.degree
                 and not V.component())
 
     def nodal_values(self, f: fem.Function) -> np.ndarray:
@@ -101,6 +100,8 @@ class NodalXDMF:
         if V.mesh is not self.msh:
             raise ValueError(f"{f.name}: not a function on this file's mesh")
         bs = V.dofmap.index_map_bs
+        if bs > 3:
+            raise ValueError(f"{f.name}: only scalar and vector fields are written, not {bs} components")
         if not self._is_node_space(V):
             g = fem.Function(self._node_space(bs))
             g.interpolate(f)

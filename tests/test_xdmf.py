@@ -111,13 +111,15 @@ def test_nodal_xdmf_writes_what_dolfinx_writes(shared_tmp_path):
         assert want[("u", 2.5e-6)][1] == pytest.approx(2 * want[("u", 0.0)][1])
 
 
-def test_nodal_xdmf_refuses_a_function_of_another_mesh(tmp_path):
+def test_nodal_xdmf_refuses_what_it_cannot_write(tmp_path):
     from dolfinx import mesh
     a = mesh.create_unit_square(MPI.COMM_SELF, 2, 2)
     b = mesh.create_unit_square(MPI.COMM_SELF, 2, 2)
     writer = NodalXDMF(str(tmp_path / f"a{MPI.COMM_WORLD.rank}.xdmf"), a)
     with pytest.raises(ValueError, match="not a function on this file's mesh"):
         writer.nodal_values(fem.Function(fem.FunctionSpace(b, ("Lagrange", 1)), name="f"))
+    with pytest.raises(ValueError, match="only scalar and vector fields are written, not 4 components"):
+        writer.nodal_values(fem.Function(fem.TensorFunctionSpace(a, ("Lagrange", 1)), name="stress"))
 
 
 def test_nodal_average_of_a_cellwise_expression_is_partition_independent():
