@@ -26,7 +26,7 @@ from dolfinx.fem import petsc as fem_petsc
 
 from femtools.errors import NewtonError, SingularSystemError
 
-__all__ = ["DirectSolver", "BlockTriangularSolver", "LinearSolver", "NewtonSolver", "SolverStats", "direct_solver",
+__all__ = ["DirectSolver", "BlockTriangularSolver", "is_symmetric", "LinearSolver", "NewtonSolver", "SolverStats", "direct_solver",
            "assemble_residual_vector", "global_norm", "jacobian_at_rest", "SingularSystemError",
            "NewtonError"]
 
@@ -92,6 +92,7 @@ class DirectSolver:
                     raise ValueError(f"{name}: mat_mumps_icntl_7 (the ordering) cannot be set: PETSc resets it "
                                      "before the analysis; MUMPS chooses it (see DirectSolver)")
                 self.icntl[int(m.group(1))] = int(options.pop(key))
+        self._prefixed = bool(options)
         if options:
             prefix = f"gelcell_{name}_{next(_counter)}_"
             self.ksp.setOptionsPrefix(prefix)
@@ -99,6 +100,42 @@ class DirectSolver:
             for k, v in options.items():
                 opts[prefix + k] = v
             self.ksp.setFromOptions()
+
+    def set_kind(self, kind: str) -> None:
+        """Factorise by ``kind`` ("lu" or "cholesky") from the next factorisation on."""
+        if kind not in ("lu", "cholesky"):
+            raise ValueError(f"kind must be 'lu' or 'cholesky' (LDL^T of a symmetric matrix), got {kind!r}")
+        if kind != self.kind:
+            pc = self.ksp.getPC()
+            solver_type = pc.getFactorSolverType()
+            A = self.ksp.getOperators()[0]
+            self.ksp.reset()
+            self.ksp.setType("preonly")
+            pc.setType(kind)
+            pc.setFactorSolverType(solver_type)
+            if self._prefixed:
+                self.ksp.setFromOptions()       # the options of the new factorisation
+            self.ksp.setOperators(A)
+            self.kind = kind
+
+    def factorize_symmetric_if_possible(self, A: PETSc.Mat) -> None:
+        """Factorise ``A`` (the current operator) by LDL^T if it is symmetric to round-off, else by LU.
+
+        LDL^T has about half the flops and fill of LU.  A symmetric indefinite
+        matrix can still defeat it (MUMPS's workspace with badly scaled rows):
+        LU with pivoting is then used.
+        """
+        kind = "cholesky" if is_symmetric(A) else "lu"
+        if kind == "cholesky":
+            A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+        self.set_kind(kind)
+        try:
+            self.factorize()
+        except FactorizationError:
+            if kind == "lu":
+                raise
+            self.set_kind("lu")
+            self.factorize()
 
     def set_operator(self, A: PETSc.Mat, reset: bool = False) -> None:
         """Use ``A``; ``reset`` drops an earlier factorisation of a matrix of another size."""
@@ -148,6 +185,19 @@ class DirectSolver:
             raise RuntimeError(f"{self.name}: linear solve failed (PETSc KSP reason {reason})")
 
 
+#: relative asymmetry (Frobenius) below which a matrix is factorised as symmetric (LDL^T)
+SYMMETRY_TOLERANCE = 1e-12
+
+
+def is_symmetric(M: PETSc.Mat, tolerance: float = SYMMETRY_TOLERANCE) -> bool:
+    """||M - M^T||_F <= tolerance ||M||_F (collective)."""
+    T = M.transpose(PETSc.Mat())
+    T.axpy(-1.0, M)
+    asym = T.norm(PETSc.NormType.FROBENIUS)
+    T.destroy()
+    return asym <= tolerance * M.norm(PETSc.NormType.FROBENIUS)
+
+
 class BlockTriangularSolver:
     """Direct solves with a block lower-triangular matrix, by block forward substitution.
 
@@ -159,9 +209,6 @@ class BlockTriangularSolver:
     A itself (exact, not a preconditioner).  ``factorize(A)`` first checks that
     the upper block is zero and returns False, factorising nothing, if it is not.
     """
-
-    #: relative asymmetry (Frobenius) below which a diagonal block is factorised as symmetric
-    SYMMETRY_TOLERANCE = 1e-12
 
     def __init__(self, comm: MPI.Comm, name: str, blocks: typing.Sequence[np.ndarray], options: dict | None = None):
         if len(blocks) != 2:
@@ -176,18 +223,6 @@ class BlockTriangularSolver:
         self.lower: PETSc.Mat | None = None
         self._vecs = None
 
-    def _symmetric(self, M: PETSc.Mat) -> bool:
-        T = M.transpose(PETSc.Mat())
-        T.axpy(-1.0, M)
-        asym = T.norm(PETSc.NormType.FROBENIUS)
-        T.destroy()
-        return asym <= self.SYMMETRY_TOLERANCE * M.norm(PETSc.NormType.FROBENIUS)
-
-    def _factorize_block(self, k: int, kind: str) -> None:
-        if self.solvers[k] is None or self.solvers[k].kind != kind:
-            self.solvers[k] = DirectSolver(self.comm, self.name, self.options, kind)    # errors name the field
-        self.solvers[k].set_operator(self.diagonal[k])
-        self.solvers[k].factorize()
 
     def factorize(self, A: PETSc.Mat) -> bool:
         """Extract and factorise the diagonal blocks of ``A``; False if ``A`` is not block lower-triangular."""
@@ -198,19 +233,11 @@ class BlockTriangularSolver:
             return False
         self.lower = A.createSubMatrix(self.sets[1], self.sets[0], submat=self.lower)
         for k, rows in enumerate(self.sets):
-            block = A.createSubMatrix(rows, rows, submat=self.diagonal[k])
-            kind = "cholesky" if self._symmetric(block) else "lu"
-            if kind == "cholesky":
-                block.setOption(PETSc.Mat.Option.SYMMETRIC, True)
-            self.diagonal[k] = block
-            try:
-                self._factorize_block(k, kind)
-            except FactorizationError:
-                if kind == "lu":
-                    raise
-                # LDL^T of a symmetric indefinite block can fail where LU with pivoting does not
-                # (e.g. MUMPS's workspace with badly scaled rows, INFOG(1) = -9): use LU
-                self._factorize_block(k, "lu")
+            self.diagonal[k] = A.createSubMatrix(rows, rows, submat=self.diagonal[k])
+            if self.solvers[k] is None:
+                self.solvers[k] = DirectSolver(self.comm, self.name, self.options)      # errors name the field
+            self.solvers[k].set_operator(self.diagonal[k])
+            self.solvers[k].factorize_symmetric_if_possible(self.diagonal[k])
         start = A.getOwnershipRange()[0]
         self._local = [b - start for b in self._global]
         # right-hand sides and solutions of the blocks, and the work vector A10 x0
@@ -250,7 +277,7 @@ def _assemble_and_factorize(A: PETSc.Mat, form, bcs, solver: DirectSolver, stats
         solver.set_operator(A)
     stats["assemble_time"] += time.perf_counter() - t0
     t0 = time.perf_counter()
-    solver.factorize()
+    solver.factorize_symmetric_if_possible(operator)
     stats["factor_time"] += time.perf_counter() - t0
     stats["factorizations"] += 1
     return operator
