@@ -93,7 +93,7 @@ class NeoHookeanCellSolver(FieldSolver):
         name: name used in messages and PETSc prefixes.
         quadrature_degree: degree of every dx/ds of the forms (the monolithic
             reference must use the same).
-        petsc_options: options of the direct solver (default MUMPS LU).
+        petsc_options: options of the direct solver (default MUMPS; LDL^T for a symmetric Jacobian, else LU).
         newton_rtol: relative incremental tolerance |du| <= rtol |u|.
         reuse: Jacobian reuse of the Newton solver, "adaptive" or "never".
         rigid_mode_rtol: with ``remove_rigid_modes``, the largest resultant

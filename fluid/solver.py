@@ -147,7 +147,7 @@ class StokesSolver(FieldSolver):
     """Steady Stokes flow on its own mesh; interface data in and out as arrays.
 
     Taylor–Hood P2/P1.  The operator is linear and does not depend on the
-    interface data, so it is assembled and factorised once (MUMPS LU);
+    interface data, so it is assembled and factorised once (MUMPS LDL^T: it is symmetric);
     ``solve()`` re-assembles only the right-hand side.  The same holds for
     the interface mass matrices used to recover the consistent traction.
 
