@@ -58,7 +58,10 @@ class FactorizationError(RuntimeError):
 
 
 class DirectSolver:
-    """LU factorisation (MUMPS by default) of one operator, reused for many right-hand sides.
+    """LU or LDL^T factorisation (MUMPS by default) of one operator, reused for many right-hand sides.
+
+    ``kind`` is "lu" or "cholesky" (LDL^T, for a symmetric operator);
+    :meth:`factorize_symmetric_if_possible` chooses it from the matrix.
 
     Options are set through the API, not the global PETSc options database,
     whose 512 entries a long test session would otherwise fill:
@@ -126,8 +129,7 @@ class DirectSolver:
         LU with pivoting is then used.
         """
         kind = "cholesky" if is_symmetric(A) else "lu"
-        if kind == "cholesky":
-            A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+        A.setOption(PETSc.Mat.Option.SYMMETRIC, kind == "cholesky")     # never a stale flag
         self.set_kind(kind)
         try:
             self.factorize()
@@ -222,7 +224,6 @@ class BlockTriangularSolver:
         self.diagonal: list[PETSc.Mat | None] = [None, None]
         self.lower: PETSc.Mat | None = None
         self._vecs = None
-
 
     def factorize(self, A: PETSc.Mat) -> bool:
         """Extract and factorise the diagonal blocks of ``A``; False if ``A`` is not block lower-triangular."""
