@@ -14,7 +14,10 @@ from femtools import continuum, jitcache
 # every field solver and the monolithic reference import this module after dolfinx (and so ffcx)
 jitcache.install()
 
-__all__ = ["integrate", "gather_rows", "owned_values", "global_max", "interpolate", "NodalAverage", "von_mises",
+#: the names ufl gives a (continuous) Lagrange family; a VectorElement reports its sub-element's
+LAGRANGE_FAMILIES = ("Lagrange", "P", "CG", "Q")
+
+__all__ = ["LAGRANGE_FAMILIES", "integrate", "gather_rows", "owned_values", "global_max", "interpolate", "NodalAverage", "von_mises",
            "green_lagrange", "quadrature_measure"]
 
 
@@ -102,7 +105,7 @@ class NodalAverage:
     def __init__(self, V: fem.FunctionSpace):
         msh = V.mesh
         family, degree = V.ufl_element().family(), V.ufl_element().degree()
-        if V.dofmap.index_map_bs != 1 or family not in ("Lagrange", "P", "CG", "Q"):
+        if V.dofmap.index_map_bs != 1 or family not in LAGRANGE_FAMILIES:
             raise ValueError(f"NodalAverage: V must be a scalar continuous Lagrange space, got {V.ufl_element()}")
         self.V = V
         self._cellwise = fem.Function(fem.FunctionSpace(msh, ("DG", degree)))

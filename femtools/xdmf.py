@@ -25,7 +25,7 @@ import numpy as np
 
 from dolfinx import fem, io
 
-from femtools.functions import gather_rows
+from femtools.functions import LAGRANGE_FAMILIES, gather_rows
 
 __all__ = ["NodalXDMF"]
 
@@ -90,8 +90,8 @@ class NodalXDMF:
 
     def _is_node_space(self, V: fem.FunctionSpace) -> bool:
         """Whether ``V`` is a (collapsed) Lagrange space of the coordinate element's degree."""
-        e = V.ufl_element()        # a VectorElement reports its sub-element's family, a MixedElement "Mixed"
-        return (e.family() in ("Lagrange", "P", "CG", "Q") and e.degree() == self.msh.geometry.cmap.degree
+        e = V.ufl_element()        # a MixedElement reports "Mixed"
+        return (e.family() in LAGRANGE_FAMILIES and e.degree() == self.msh.geometry.cmap.degree
                 and not V.component())
 
     def nodal_values(self, f: fem.Function) -> np.ndarray:
