@@ -47,9 +47,9 @@ class DerivedFields:
     measures of the three stress parts and their sum; cell: u_c, von Mises
     strain and stress (von Mises measures at the P2 nodes, each the mean over
     the cells around the node: ``femtools.functions.NodalAverage``, the same on
-    any partition); fluid: V, P and, with finite kinematics, the mesh displacement to its current domain.  The stress
-    and displacement units enter as Constants, so no parameter value makes
-    anything compile again; ``update()`` recomputes every field from the
+    any partition); fluid: V, P and, with finite kinematics, the mesh
+    displacement to its current domain.  The stress and displacement units
+    enter as Constants, so no parameter value makes anything compile again; ``update()`` recomputes every field from the
     (possibly changed) functions of ``fields``.
     """
 
@@ -134,7 +134,8 @@ def derived_cell_fields(fields: DeviceFields) -> dict[str, fem.Function]:
 
 class FieldSeries:
     """XDMF files (fluid, gel, cell) holding the derived fields at several times, for ParaView
-    (``femtools.xdmf.NodalXDMF``: the files dolfinx writes, without its cost per field on curved meshes)."""
+    (``femtools.xdmf.NodalXDMF``: the files dolfinx writes, without its cost per field on curved
+    meshes).  Each ``write`` leaves the files complete; nothing is held open between writes."""
 
     def __init__(self, directory: str, derived: DerivedFields):
         self.derived = derived
@@ -150,9 +151,6 @@ class FieldSeries:
         for _, xf, functions in self.files:
             xf.write(functions, t)
 
-    def close(self) -> None:
-        """Nothing is held open between writes (kept for the callers' try/finally)."""
-
 
 def write_fields(directory: str, fields: DeviceFields, derived: DerivedFields | None = None) -> list[str]:
     """fluid.xdmf (V, P), gel.xdmf (v_f, p, u_s, von Mises ...), cell.xdmf (u_c, strain, stress).
@@ -160,10 +158,7 @@ def write_fields(directory: str, fields: DeviceFields, derived: DerivedFields | 
     ``derived``: the :class:`DerivedFields` of ``fields`` if already built (e.g. shared with the figures).
     """
     series = FieldSeries(directory, derived or DerivedFields(fields))
-    try:
-        series.write(0.0)
-    finally:
-        series.close()
+    series.write(0.0)
     return series.names
 
 

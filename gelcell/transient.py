@@ -640,9 +640,9 @@ def run_transient_case(params: CaseParameters, settings: TimeSettings, out: str 
                         inflow=settings.waveform)
         backend = PartitionedBackend(device, config, comm)
     setup_time = time.perf_counter() - t0
-    worker: FigureWorker | None = None        # draws the device figures of a serial run (below)
 
-    def solve_and_write(work_dir: str | None) -> dict:
+    def solve_and_write(work_dir: str | None, worker: FigureWorker | None = None) -> dict:
+        """Run and write into ``work_dir``; ``worker`` draws the device figures of a serial run."""
         run = TransientRun(backend, params, settings, comm, work_dir, say)
         if resume:
             run.resume()
@@ -683,13 +683,10 @@ def run_transient_case(params: CaseParameters, settings: TimeSettings, out: str 
         if fields:
             derived = DerivedFields(backend.fields)
             series = FieldSeries(work_dir, derived)
-            try:
-                for index, t_frame in state["frames"]:
-                    read_frame(os.path.join(work_dir, _FRAMES), int(index), backend.fields, comm)
-                    derived.update()
-                    series.write(float(t_frame))
-            finally:
-                series.close()
+            for index, t_frame in state["frames"]:
+                read_frame(os.path.join(work_dir, _FRAMES), int(index), backend.fields, comm)
+                derived.update()
+                series.write(float(t_frame))
             written += series.names
         written += [f"{k.lower()}_profiles.{ext}" for k in profiles for ext in ("h5", "csv")]
         backend.write_records(os.path.join(work_dir, "coupling"))
@@ -715,7 +712,7 @@ def run_transient_case(params: CaseParameters, settings: TimeSettings, out: str 
     with figure_worker(figures, comm) as worker:
         with atomic_directory(out, comm, partial=True) as work_dir:
             try:
-                summary = solve_and_write(work_dir)
+                summary = solve_and_write(work_dir, worker)
             finally:
                 if worker is not None:
                     worker.close()          # before the directory is promoted or left as DIR.partial
