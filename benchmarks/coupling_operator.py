@@ -18,7 +18,18 @@ residual of 1e-10 on every accelerated data:
   their densities), its solution as the initial guess, the Gamma2 prior on
   the rest;
 * ``surrogate iqn``: the same with the surrogate's own IQN secant model
-  instead of its exact inverse Jacobian (what a cheap surrogate provides).
+  instead of its exact inverse Jacobian (what a cheap surrogate provides);
+* ``exact interface blocks``: the prior holds, for each interface's data, the
+  exact inverse Jacobian of that interface's diagonal block of A (what an
+  operator-valued Robin or interface Schur-complement preconditioner per
+  interface could at best provide; the fluid-gel interfaces Gamma1 and Gamma3
+  as one block, or only Gamma2's), the Gamma2 prior where no block is exact;
+  ``exact`` is the whole inverse Jacobian (2 iterations: the check).
+
+Then a second solve reuses the first one's secant columns (as a Ca sweep does,
+``time_windows_reused``), from the first solution, for a fixed point moved by
+a relative 1e-5: along the solution itself (a change of scale, which the
+columns span) and in a random direction (what they do not span).
 
 A surrogate is fed to the accelerator through the coupling library's generic
 prior (``IQNIMVJ`` with ``jacobian`` set = IQN-ILS with the prior ``J0``).
@@ -110,23 +121,58 @@ def transfer(fine_points, coarse_points, names):
     return sp.block_diag(pb).toarray(), sp.block_diag(rb).toarray()
 
 
-def iterate(a, xs, layout, prior=None, x0=None, limit=1e-10, max_iterations=300):
-    """IQN on x -> xs + a (x - xs); returns (iterations or None, the accelerator)."""
-    kind = "iqn-imvj" if prior is not None else "iqn-ils"
-    config = load_config({"scheme": "serial-implicit", "acceleration": {**IQN, "type": kind},
-                          "convergence": [{"type": "relative", "limit": limit}]}).acceleration
-    acc = build_acceleration(config, layout)
-    if prior is not None:
-        acc.jacobian = prior
-        acc.windows_completed = 1        # use the prior from the first iteration
+def iterate(a, xs, layout, prior=None, x0=None, limit=1e-10, max_iterations=300, acc=None):
+    """IQN on x -> xs + a (x - xs); returns (iterations or None, the accelerator, the last x).
+
+    ``acc``: an accelerator to go on with (its kept columns), else a new one."""
+    if acc is None:
+        kind = "iqn-imvj" if prior is not None else "iqn-ils"
+        config = load_config({"scheme": "serial-implicit", "acceleration": {**IQN, "type": kind},
+                              "convergence": [{"type": "relative", "limit": limit}]}).acceleration
+        acc = build_acceleration(config, layout)
+        if prior is not None:
+            acc.jacobian = prior
+            acc.windows_completed = 1        # use the prior from the first iteration
     x = np.zeros_like(xs) if x0 is None else x0.copy()
     for k in range(1, max_iterations + 1):
         xt = xs + a @ (x - xs)
         r = xt - x
         if max(np.linalg.norm(r[s]) / np.linalg.norm(xt[s]) for s in layout.slices()) < limit:
-            return k, acc
+            acc.window_converged(x, xt)
+            return k, acc, x
         x = acc.compute(x, xt)
-    return None, acc
+    return None, acc, x
+
+
+def exact_blocks(a, layout, groups, elsewhere):
+    """A prior: the exact inverse Jacobian b (b - I)^-1 of each group's diagonal block b of ``a``
+    (a group: the interface names whose data form one block), ``elsewhere`` (a diagonal) on the rest."""
+    j = np.diag(elsewhere)
+    for group in groups:
+        ix = np.hstack([np.arange(a.shape[0])[s] for name, s in zip(layout.names, layout.slices())
+                        if name.split("/")[0] in group])
+        b = a[np.ix_(ix, ix)]
+        j[np.ix_(ix, ix)] = b @ np.linalg.inv(b - np.eye(len(ix)))
+    return j
+
+
+def reuse_rows(a, xs, layout, prior, shift=1e-5):
+    """Iterations of a second solve from the first solution with the first solve's columns kept,
+    for the fixed point moved by a relative ``shift`` along xs and in a random direction."""
+    config = load_config({"scheme": "serial-implicit",
+                          "acceleration": {**IQN, "time_windows_reused": 4, "relaxation_prior": prior},
+                          "convergence": [{"type": "relative", "limit": 1e-10}]}).acceleration
+    acc = build_acceleration(config, layout)
+    _, acc, x1 = iterate(a, xs, layout, acc=acc)
+    rng = np.random.default_rng(0)
+    rows = {}
+    for label, direction in (("along the solution", xs), ("random", rng.standard_normal(xs.size) * np.abs(xs))):
+        acc_k = build_acceleration(config, layout)
+        acc_k.load_state_dict(acc.state_dict())
+        moved = xs + shift * np.linalg.norm(xs) / np.linalg.norm(direction) * direction
+        rows[f"second solve, fixed point moved {shift:g} {label}, columns kept"] = \
+            iterate(a, moved, layout, x0=x1, acc=acc_k)[0]
+    return rows
 
 
 def main() -> None:
@@ -161,7 +207,7 @@ def main() -> None:
     prolong, restrict = transfer(pts, pts_c, layout.names)
     rest = relax(layout, n) @ (np.eye(n) - prolong @ restrict)
     exact_c = ac @ np.linalg.inv(ac - np.eye(nc))
-    its_c, acc_c = iterate(ac, xc, layout_c, prior=relax(layout_c, nc))
+    its_c, acc_c, _ = iterate(ac, xc, layout_c, prior=relax(layout_c, nc))
     w = acc_c.preconditioner.weights
     q, r = np.linalg.qr(w[:, None] * acc_c.V)
     z = np.linalg.solve(r, q.T) * w[None, :]
@@ -175,8 +221,22 @@ def main() -> None:
         f"surrogate iqn ({its_c} coarse iterations)":
             iterate(a, xs, layout, prior=prolong @ secant_c @ restrict + rest, x0=prolong @ xc)[0],
     }
+    interfaces = sorted({name.split("/")[0] for name in layout.names})
+    fluid_gel = {g for g in interfaces if g != "Gamma2"}
+    gamma2 = np.diag(relax(layout, n))
+    rows.update({
+        "exact fluid-gel block, Gamma2 prior": iterate(a, xs, layout, prior=exact_blocks(
+            a, layout, [fluid_gel], gamma2))[0],
+        "exact Gamma2 block only": iterate(a, xs, layout, prior=exact_blocks(a, layout, [{"Gamma2"}],
+                                                                             0 * gamma2))[0],
+        "exact interface blocks (fluid-gel, Gamma2)": iterate(a, xs, layout, prior=exact_blocks(
+            a, layout, [fluid_gel, {"Gamma2"}], gamma2))[0],
+        "exact": iterate(a, xs, layout, prior=a @ np.linalg.inv(a - np.eye(n)))[0],
+    })
+    prior = {name: 1.0 / (1.0 + rho) for name in layout.names if name.endswith("/force")}
+    rows.update(reuse_rows(a, xs, layout, prior))
     for name, its in rows.items():
-        print(f"  {name:40s} {its if its is not None else '>300'}")
+        print(f"  {name:72s} {its if its is not None else '>300'}")
 
 
 if __name__ == "__main__":
