@@ -422,7 +422,10 @@ class NewtonSolver:
     the residual is ``F + F_data``.  The state part ``F`` (the bulk) is
     assembled only when the state or one of its coefficients or Constants
     changed since its last assembly, so a solve that starts where the previous
-    one ended re-assembles only ``F_data``.  The lifting of Dirichlet values is
+    one ended re-assembles only ``F_data``.  It is kept for two states: the
+    one the last solve started from and the latest iterate, so that solves
+    which all start from one state (a time window's checkpoint, to which every
+    coupling iteration returns) assemble it there once.  The lifting of Dirichlet values is
     skipped when the iterate already satisfies them (it would add nothing).
 
     Convergence: ``|du| <= rtol |u|``, or the remaining error estimated from
@@ -471,7 +474,9 @@ class NewtonSolver:
         self.last_linear_ratio: float | None = None
         # what the state part depends on: its coefficients' values and its Constants
         self._state_sources = (list(F.coefficients()), list(F.constants()))
-        self._state_key: list[np.ndarray] | None = None       # where the cached F(u) was assembled
+        # (key, F(u)) at the state the last solve started from and at the latest other state
+        self._state_residuals: dict[str, tuple[list[np.ndarray], PETSc.Vec] | None] = {"start": None,
+                                                                                       "latest": None}
         self._solution_key: list[np.ndarray] | None = None    # where the last solve ended
         self.J_reference = None if J_reference is None else fem.form(J_reference, form_compiler_params=fcp)
         self.u, self.bcs, self.name = u, bcs, name
@@ -481,7 +486,6 @@ class NewtonSolver:
         comm = u.function_space.mesh.comm
         self.A = fem_petsc.create_matrix(self.J)
         self.b = fem_petsc.create_vector(self.F)
-        self._state_vec = fem_petsc.create_vector(self.F)   # the state part F(u), owned entries
         self._bc_check = self.A.createVecRight()
         self.du = self.A.createVecRight()
         self._active = None
@@ -576,20 +580,25 @@ class NewtonSolver:
     def _same_key(self, key: list[np.ndarray], other: list[np.ndarray] | None) -> bool:
         return _unchanged(key, other, self.u.function_space.mesh.comm)
 
-    def state_residual(self) -> PETSc.Vec:
+    def state_residual(self, start: bool = False) -> PETSc.Vec:
         """The state part F(u) without boundary conditions or loads (owned entries; do not modify).
 
-        Re-assembled only if the state or a coefficient or Constant of F changed since the last time.
+        Re-assembled only if the state or a coefficient or Constant of F differs from both states
+        it is kept for; ``start``: u is where a solve starts (kept until the next solve's start).
         """
         key = self._current_state_key()
-        if not self._same_key(key, self._state_key):
-            with self._state_vec.localForm() as loc:
-                loc.set(0.0)
-            fem_petsc.assemble_vector(self._state_vec, self.F)
-            self._state_vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-            self._state_key = [a.copy() for a in key]
-            self.stats["state_assemblies"] += 1
-        return self._state_vec
+        for kept in self._state_residuals.values():
+            if kept is not None and self._same_key(key, kept[0]):
+                return kept[1]
+        slot = "start" if start else "latest"
+        vec = fem_petsc.create_vector(self.F) if self._state_residuals[slot] is None else self._state_residuals[slot][1]
+        with vec.localForm() as loc:
+            loc.set(0.0)
+        fem_petsc.assemble_vector(vec, self.F)
+        vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        self._state_residuals[slot] = ([a.copy() for a in key], vec)
+        self.stats["state_assemblies"] += 1
+        return vec
 
     def _dirichlet_satisfied(self) -> bool:
         """True if u already holds every Dirichlet value (then lifting adds nothing), on every rank."""
@@ -602,9 +611,10 @@ class NewtonSolver:
         comm = self.u.function_space.mesh.comm
         return comm.allreduce(ok, op=MPI.LAND) if comm.size > 1 else ok
 
-    def residual(self) -> PETSc.Vec:
-        """``F(u)`` - nodal loads, with Dirichlet rows holding ``u - g`` (the Newton convention)."""
-        state = self.state_residual()
+    def residual(self, start: bool = False) -> PETSc.Vec:
+        """``F(u)`` - nodal loads, with Dirichlet rows holding ``u - g`` (the Newton convention);
+        ``start``: at the state a solve starts from (see :meth:`state_residual`)."""
+        state = self.state_residual(start)
         with self.b.localForm() as loc:
             loc.set(0.0)
         if self.F_data is not None:
@@ -649,7 +659,7 @@ class NewtonSolver:
             self._have_jacobian = False
         for it in range(1, self.max_it + 1):
             t0 = time.perf_counter()
-            self.residual()
+            self.residual(start=it == 1)
             self.stats["assemble_time"] += time.perf_counter() - t0
             if linear_path and initial_residual is None:
                 initial_residual = self.b.norm()

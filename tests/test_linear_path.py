@@ -11,6 +11,8 @@
   solution of the whole system, not an approximation.
 * The interface mass matrix on the interface nodes is the one of the whole
   space restricted to them.
+* Solves that all start from one state (a time window's checkpoint) assemble
+  the state part of the residual there once.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import pytest
 from mpi4py import MPI
 from petsc4py import PETSc
 
+import dolfinx.mesh
 import ufl
 from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
@@ -29,7 +32,7 @@ from cell import NeoHookeanCellSolver
 from cell import meshes
 from femtools.functions import quadrature_measure
 from femtools.interface import InterfaceMass, InterfaceNodes
-from femtools.linalg import BlockTriangularSolver, DirectSolver
+from femtools.linalg import BlockTriangularSolver, DirectSolver, NewtonSolver
 from gel import GelParameters, PoroelasticGelSolver
 from gel.testing import BOTTOM, LEFT, RIGHT, TOP, rectangle
 
@@ -149,6 +152,44 @@ def test_linear_path_needs_a_continued_state():
 
 
 # -- the block-triangular solve ------------------------------------------------------------
+def test_solves_from_one_state_assemble_its_state_residual_once():
+    """Every coupling iteration of a time window solves from the window's checkpoint: F(u0) once.
+
+    A nonlinear Poisson problem, -div((1 + u^2) grad u) = c, u = 0 on the boundary, solved from
+    u0 = 0 for three loads c (at least three Newton steps each, so the iterates would displace
+    u0 from a cache of the last two states). The first solve assembles the state part at each of
+    its iterates; the later ones, which start from u0 again, at one fewer. Each solution is the
+    one a new solver finds (to 1e-10; Newton converged to 1e-12).
+    """
+    msh = dolfinx.mesh.create_unit_square(COMM, 8, 8)
+    V = fem.FunctionSpace(msh, ("Lagrange", 1))
+
+    def solver():
+        u, v = fem.Function(V), ufl.TestFunction(V)
+        c = fem.Constant(msh, 0.0)
+        msh.topology.create_connectivity(1, 2)
+        boundary = dolfinx.mesh.exterior_facet_indices(msh.topology)
+        bc = fem.dirichletbc(0.0, fem.locate_dofs_topological(V, 1, boundary), V)
+        F = ufl.inner((1 + u**2) * ufl.grad(u), ufl.grad(v)) * ufl.dx
+        # exact Newton: a kept Jacobian's rejected (undone) steps would leave round-off-different states
+        return NewtonSolver(F, u, [bc], F_data=-c * v * ufl.dx, rtol=1e-12, reuse="never", name="poisson"), u, c
+
+    newton, u, c = solver()
+    for k, load in enumerate((10.0, 11.0, 12.0)):
+        u.x.array[:] = 0.0
+        c.value = load
+        assembled, stepped = newton.stats["state_assemblies"], newton.stats["newton_iterations"]
+        newton.solve()
+        # the residual is assembled at u0 and at every accepted iterate but the last (the step decides)
+        steps = newton.stats["newton_iterations"] - stepped
+        assert steps >= 3, steps
+        assert newton.stats["state_assemblies"] - assembled == (steps if k == 0 else steps - 1)
+        fresh, u_fresh, c_fresh = solver()
+        c_fresh.value = load
+        fresh.solve()
+        assert gnorm(owned(u) - owned(u_fresh)) <= 1e-10 * gnorm(owned(u_fresh))
+
+
 def test_block_triangular_solve_is_the_solution():
     """The gel's linearisation at rest, solved block by block, against one LU of the whole matrix."""
     gel = _column(GelParameters.viscous_units(Ca=3e-10))
