@@ -23,7 +23,6 @@ import pytest
 from mpi4py import MPI
 from petsc4py import PETSc
 
-import dolfinx.mesh
 import ufl
 from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
@@ -32,7 +31,7 @@ from cell import NeoHookeanCellSolver
 from cell import meshes
 from femtools.functions import quadrature_measure
 from femtools.interface import InterfaceMass, InterfaceNodes
-from femtools.linalg import BlockTriangularSolver, DirectSolver, NewtonSolver
+from femtools.linalg import BlockTriangularSolver, DirectSolver
 from gel import GelParameters, PoroelasticGelSolver
 from gel.testing import BOTTOM, LEFT, RIGHT, TOP, rectangle
 
@@ -151,45 +150,38 @@ def test_linear_path_needs_a_continued_state():
     assert gel.newton.stats["linear_steps"] == 1
 
 
-# -- the block-triangular solve ------------------------------------------------------------
 def test_solves_from_one_state_assemble_its_state_residual_once():
     """Every coupling iteration of a time window solves from the window's checkpoint: F(u0) once.
 
-    A nonlinear Poisson problem, -div((1 + u^2) grad u) = c, u = 0 on the boundary, solved from
-    u0 = 0 for three loads c (at least three Newton steps each, so the iterates would displace
-    u0 from a cache of the last two states). The first solve assembles the state part at each of
-    its iterates; the later ones, which start from u0 again, at one fewer. Each solution is the
-    one a new solver finds (to 1e-10; Newton converged to 1e-12).
+    The cell (finite strain, stretches of ~10-15 %) solved from rest, u0 = 0, for three stretches,
+    by exact Newton (at least three steps each, so the iterates would displace u0 from a cache
+    of the last two states; a kept Jacobian's undone steps would leave states that differ by
+    round-off). The first solve assembles the state part of the residual at each accepted
+    iterate but the last (its step decides convergence); the later ones, which start from u0
+    again, at one fewer. Each solution is the one a new solver finds from rest (to 1e-10).
     """
-    msh = dolfinx.mesh.create_unit_square(COMM, 8, 8)
-    V = fem.FunctionSpace(msh, ("Lagrange", 1))
-
-    def solver():
-        u, v = fem.Function(V), ufl.TestFunction(V)
-        c = fem.Constant(msh, 0.0)
-        msh.topology.create_connectivity(1, 2)
-        boundary = dolfinx.mesh.exterior_facet_indices(msh.topology)
-        bc = fem.dirichletbc(0.0, fem.locate_dofs_topological(V, 1, boundary), V)
-        F = ufl.inner((1 + u**2) * ufl.grad(u), ufl.grad(v)) * ufl.dx
-        # exact Newton: a kept Jacobian's rejected (undone) steps would leave round-off-different states
-        return NewtonSolver(F, u, [bc], F_data=-c * v * ufl.dx, rtol=1e-12, reuse="never", name="poisson"), u, c
-
-    newton, u, c = solver()
-    for k, load in enumerate((10.0, 11.0, 12.0)):
-        u.x.array[:] = 0.0
-        c.value = load
+    msh, ft = meshes.block(1.0, 1.0, 6)
+    tags = tuple(int(t) for t in np.unique(np.hstack(COMM.allgather(np.unique(ft.values)))))
+    make = lambda: NeoHookeanCellSolver(msh, ft, mu=1.0, lmbda=1.5, displacement_scale=1.0,  # noqa: E731
+                                        interfaces={"boundary": tags}, newton_rtol=1e-12, reuse="never")
+    cell = make()
+    newton = cell._newton
+    for k, amplitude in enumerate((1.0, 1.2, 1.4)):
+        cell.displacement.x.array[:] = 0.0
+        _stretch(cell, amplitude)
         assembled, stepped = newton.stats["state_assemblies"], newton.stats["newton_iterations"]
-        newton.solve()
-        # the residual is assembled at u0 and at every accepted iterate but the last (the step decides)
+        cell.solve()
         steps = newton.stats["newton_iterations"] - stepped
         assert steps >= 3, steps
         assert newton.stats["state_assemblies"] - assembled == (steps if k == 0 else steps - 1)
-        fresh, u_fresh, c_fresh = solver()
-        c_fresh.value = load
+        fresh = make()
+        _stretch(fresh, amplitude)
         fresh.solve()
-        assert gnorm(owned(u) - owned(u_fresh)) <= 1e-10 * gnorm(owned(u_fresh))
+        a, b = owned(cell.displacement), owned(fresh.displacement)
+        assert gnorm(a - b) <= 1e-10 * gnorm(b)
 
 
+# -- the block-triangular solve ------------------------------------------------------------
 def test_block_triangular_solve_is_the_solution():
     """The gel's linearisation at rest, solved block by block, against one LU of the whole matrix."""
     gel = _column(GelParameters.viscous_units(Ca=3e-10))
