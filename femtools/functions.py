@@ -17,8 +17,8 @@ jitcache.install()
 #: the names ufl gives a (continuous) Lagrange family; a VectorElement reports its sub-element's
 LAGRANGE_FAMILIES = ("Lagrange", "P", "CG", "Q")
 
-__all__ = ["LAGRANGE_FAMILIES", "integrate", "gather_rows", "owned_values", "global_max", "interpolate", "NodalAverage", "von_mises",
-           "green_lagrange", "quadrature_measure"]
+__all__ = ["LAGRANGE_FAMILIES", "integrate", "gather_rows", "owned_values", "global_max", "interpolate",
+           "NodalAverage", "von_mises", "green_lagrange", "quadrature_measure"]
 
 
 def integrate(expr, measure, comm: MPI.Comm | None = None) -> float:

@@ -26,8 +26,8 @@ from dolfinx.fem import petsc as fem_petsc
 
 from femtools.errors import NewtonError, SingularSystemError
 
-__all__ = ["DirectSolver", "BlockTriangularSolver", "is_symmetric", "LinearSolver", "NewtonSolver", "SolverStats", "direct_solver",
-           "assemble_residual_vector", "global_norm", "jacobian_at_rest", "SingularSystemError",
+__all__ = ["DirectSolver", "BlockTriangularSolver", "is_symmetric", "LinearSolver", "NewtonSolver", "SolverStats",
+           "direct_solver", "assemble_residual_vector", "global_norm", "jacobian_at_rest", "SingularSystemError",
            "NewtonError"]
 
 _counter = itertools.count()
@@ -57,6 +57,11 @@ class FactorizationError(RuntimeError):
         self.infog1 = infog1
 
 
+def _check_kind(kind: str) -> None:
+    if kind not in ("lu", "cholesky"):
+        raise ValueError(f"kind must be 'lu' or 'cholesky' (LDL^T of a symmetric matrix), got {kind!r}")
+
+
 class DirectSolver:
     """LU or LDL^T factorisation (MUMPS by default) of one operator, reused for many right-hand sides.
 
@@ -74,8 +79,7 @@ class DirectSolver:
     """
 
     def __init__(self, comm: MPI.Comm, name: str, options: dict | None = None, kind: str = "lu"):
-        if kind not in ("lu", "cholesky"):
-            raise ValueError(f"kind must be 'lu' or 'cholesky' (LDL^T of a symmetric matrix), got {kind!r}")
+        _check_kind(kind)
         self.name, self.kind = name, kind
         self.ksp = PETSc.KSP().create(comm)
         self.ksp.setType("preonly")
@@ -106,8 +110,7 @@ class DirectSolver:
 
     def set_kind(self, kind: str) -> None:
         """Factorise by ``kind`` ("lu" or "cholesky") from the next factorisation on."""
-        if kind not in ("lu", "cholesky"):
-            raise ValueError(f"kind must be 'lu' or 'cholesky' (LDL^T of a symmetric matrix), got {kind!r}")
+        _check_kind(kind)
         if kind != self.kind:
             pc = self.ksp.getPC()
             solver_type = pc.getFactorSolverType()
@@ -121,13 +124,14 @@ class DirectSolver:
             self.ksp.setOperators(A)
             self.kind = kind
 
-    def factorize_symmetric_if_possible(self, A: PETSc.Mat) -> None:
-        """Factorise ``A`` (the current operator) by LDL^T if it is symmetric to round-off, else by LU.
+    def factorize_symmetric_if_possible(self) -> None:
+        """Factorise the current operator by LDL^T if it is symmetric to round-off, else by LU.
 
         LDL^T has about half the flops and fill of LU.  A symmetric indefinite
         matrix can still defeat it (MUMPS's workspace with badly scaled rows):
         LU with pivoting is then used.
         """
+        A = self.ksp.getOperators()[0]
         kind = "cholesky" if is_symmetric(A) else "lu"
         A.setOption(PETSc.Mat.Option.SYMMETRIC, kind == "cholesky")     # never a stale flag
         self.set_kind(kind)
@@ -238,11 +242,12 @@ class BlockTriangularSolver:
             if self.solvers[k] is None:
                 self.solvers[k] = DirectSolver(self.comm, self.name, self.options)      # errors name the field
             self.solvers[k].set_operator(self.diagonal[k])
-            self.solvers[k].factorize_symmetric_if_possible(self.diagonal[k])
+            self.solvers[k].factorize_symmetric_if_possible()
         start = A.getOwnershipRange()[0]
         self._local = [b - start for b in self._global]
         # right-hand sides and solutions of the blocks, and the work vector A10 x0
-        self._vecs = [(D.createVecLeft(), D.createVecRight()) for D in self.diagonal] + [self.diagonal[1].createVecLeft()]
+        self._vecs = ([(D.createVecLeft(), D.createVecRight()) for D in self.diagonal]
+                      + [self.diagonal[1].createVecLeft()])
         return True
 
     def solve(self, b: PETSc.Vec, x: PETSc.Vec) -> None:
@@ -278,7 +283,7 @@ def _assemble_and_factorize(A: PETSc.Mat, form, bcs, solver: DirectSolver, stats
         solver.set_operator(A)
     stats["assemble_time"] += time.perf_counter() - t0
     t0 = time.perf_counter()
-    solver.factorize_symmetric_if_possible(operator)
+    solver.factorize_symmetric_if_possible()
     stats["factor_time"] += time.perf_counter() - t0
     stats["factorizations"] += 1
     return operator
@@ -591,7 +596,8 @@ class NewtonSolver:
             if kept is not None and self._same_key(key, kept[0]):
                 return kept[1]
         slot = "start" if start else "latest"
-        vec = fem_petsc.create_vector(self.F) if self._state_residuals[slot] is None else self._state_residuals[slot][1]
+        kept = self._state_residuals[slot]
+        vec = fem_petsc.create_vector(self.F) if kept is None else kept[1]
         with vec.localForm() as loc:
             loc.set(0.0)
         fem_petsc.assemble_vector(vec, self.F)

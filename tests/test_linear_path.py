@@ -279,7 +279,7 @@ def test_symmetric_operators_are_factorised_by_ldlt_and_others_by_lu():
     for dense, kind in ((saddle, "cholesky"), (skewed, "lu"), (saddle, "cholesky")):
         A = _aij(dense)
         solver.set_operator(A)
-        solver.factorize_symmetric_if_possible(A)
+        solver.factorize_symmetric_if_possible()
         assert solver.kind == kind
         assert solver.ksp.getPC().getType() == kind
         b, x = A.createVecLeft(), A.createVecRight()
