@@ -121,6 +121,12 @@ def transfer(fine_points, coarse_points, names):
     return sp.block_diag(pb).toarray(), sp.block_diag(rb).toarray()
 
 
+def acceleration_config(limit: float, **settings):
+    """The ``IQN`` acceleration with ``settings`` on top, of a serial scheme converging to ``limit``."""
+    return load_config({"scheme": "serial-implicit", "acceleration": {**IQN, **settings},
+                        "convergence": [{"type": "relative", "limit": limit}]}).acceleration
+
+
 def iterate(a, xs, layout, prior=None, x0=None, limit=1e-10, max_iterations=300, acc=None, close=False):
     """IQN on x -> xs + a (x - xs); returns (iterations or None, the accelerator, the last x).
 
@@ -128,10 +134,8 @@ def iterate(a, xs, layout, prior=None, x0=None, limit=1e-10, max_iterations=300,
     solve as a converged window (the columns kept for the next one, as a sweep does) instead of
     leaving the accelerator as it is after the last iteration (its secant columns, for a model)."""
     if acc is None:
-        kind = "iqn-imvj" if prior is not None else "iqn-ils"
-        config = load_config({"scheme": "serial-implicit", "acceleration": {**IQN, "type": kind},
-                              "convergence": [{"type": "relative", "limit": limit}]}).acceleration
-        acc = build_acceleration(config, layout)
+        acc = build_acceleration(acceleration_config(limit, type="iqn-imvj" if prior is not None else "iqn-ils"),
+                                 layout)
         if prior is not None:
             acc.jacobian = prior
             acc.windows_completed = 1        # use the prior from the first iteration
@@ -162,9 +166,7 @@ def exact_blocks(a, layout, groups, elsewhere):
 def reuse_rows(a, xs, layout, prior, shift=1e-5):
     """Iterations of a second solve from the first solution with the first solve's columns kept,
     for the fixed point moved by a relative ``shift`` along xs and in a random direction."""
-    config = load_config({"scheme": "serial-implicit",
-                          "acceleration": {**IQN, "time_windows_reused": 4, "relaxation_prior": prior},
-                          "convergence": [{"type": "relative", "limit": 1e-10}]}).acceleration
+    config = acceleration_config(1e-10, time_windows_reused=4, relaxation_prior=prior)
     acc = build_acceleration(config, layout)
     _, acc, x1 = iterate(a, xs, layout, acc=acc, close=True)
     rng = np.random.default_rng(0)
