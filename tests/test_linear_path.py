@@ -31,7 +31,7 @@ from cell import NeoHookeanCellSolver
 from cell import meshes
 from femtools.functions import quadrature_measure
 from femtools.interface import InterfaceMass, InterfaceNodes
-from femtools.linalg import BlockTriangularSolver, DirectSolver
+from femtools.linalg import BlockTriangularSolver, DirectSolver, is_symmetric
 from gel import GelParameters, PoroelasticGelSolver
 from gel.testing import BOTTOM, LEFT, RIGHT, TOP, rectangle
 
@@ -260,6 +260,22 @@ def _aij(dense: np.ndarray) -> PETSc.Mat:
         A.setValues([i], cols, dense[i, cols])
     A.assemble()
     return A
+
+
+def test_symmetry_is_judged_entrywise_relative_to_the_largest_row_sum():
+    """``is_symmetric``: asymmetries of round-off size (1e-15 of an entry) pass, one of 1e-9 of the
+    largest row sum does not, nor does an entry without its transposed partner (on 1 and 2 ranks)."""
+    n = 40
+    dense = 4.0 * np.eye(n) - np.eye(n, k=1) - np.eye(n, k=-1) + 0.5 * (np.eye(n, k=7) + np.eye(n, k=-7))
+    row_sum = np.abs(dense).sum(axis=1).max()
+    rounded = dense.copy()
+    rounded[3, 10] *= 1.0 + 1e-15
+    skewed = dense.copy()
+    skewed[3, 10] += 1e-9 * row_sum
+    one_sided = dense.copy()
+    one_sided[0, n - 1] = 1e-3
+    for matrix, expected in ((dense, True), (rounded, True), (skewed, False), (one_sided, False)):
+        assert is_symmetric(_aij(matrix)) is expected
 
 
 def test_symmetric_operators_are_factorised_by_ldlt_and_others_by_lu():
