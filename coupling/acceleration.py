@@ -631,8 +631,14 @@ class _QuasiNewton(Acceleration):
         self.previous_output = None
 
     def _state(self) -> dict[str, Any]:
-        return {"V": self.V.copy(), "W": self.W.copy(), "window_columns": list(self.window_columns),
-                "previous_residual": self.previous_residual, "previous_output": self.previous_output}
+        # the QR2 basis of the kept columns too: a restored solve then takes the least-squares
+        # steps the uninterrupted one takes, to the bit (a QR computed afresh differs in round-off)
+        cached = self._kept_basis if self._kept_basis is not None and self._kept_basis[0] is self.V else None
+        # copies in the arrays' own memory order: BLAS rounds a C- and an F-ordered matrix differently
+        return {"V": self.V.copy(order="K"), "W": self.W.copy(order="K"), "window_columns": list(self.window_columns),
+                "previous_residual": self.previous_residual, "previous_output": self.previous_output,
+                "kept_basis": None if cached is None else cached[2].copy(order="K"),
+                "kept_basis_weights": None if cached is None else cached[1].copy()}
 
     def _load_state(self, state: dict[str, Any]) -> None:
         n = self.layout.size
@@ -644,6 +650,9 @@ class _QuasiNewton(Acceleration):
         prev_r, prev_o = state["previous_residual"], state["previous_output"]
         self.previous_residual = None if prev_r is None else np.array(prev_r, dtype=float)
         self.previous_output = None if prev_o is None else np.array(prev_o, dtype=float)
+        basis, weights = state.get("kept_basis"), state.get("kept_basis_weights")
+        self._kept_basis = None if basis is None or weights is None else \
+            (self.V, np.array(weights, dtype=float).reshape(n), np.array(basis, dtype=float).reshape(n, -1))
 
 
 class IQNILS(_QuasiNewton):
