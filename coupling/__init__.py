@@ -27,6 +27,7 @@ from coupling.config import (AccelerationConfig, ConvergenceMeasureConfig, Coupl
 from coupling.convergence import (AbsoluteConvergence, ConvergenceMeasure, RelativeConvergence,
                                   ResidualRelativeConvergence, build_measure)
 from coupling.errors import CouplingDivergedError, CouplingError, CouplingNotConvergedError
+from coupling.extrapolation import lagrange_weights
 from coupling.layout import VectorLayout
 from coupling.mapping import Mapping, build_mapping, order_along_curve
 from coupling.participant import Data, Participant
@@ -48,5 +49,5 @@ __all__ = [
     "ResidualRelativeConvergence", "build_measure",
     "CouplingError", "CouplingDivergedError", "CouplingNotConvergedError",
     "CouplingResult", "IterationRecord", "WindowRecord", "Recording", "RecordedSolve",
-    "ReplayResult", "VectorLayout", "Mapping", "build_mapping", "order_along_curve",
+    "ReplayResult", "VectorLayout", "Mapping", "build_mapping", "order_along_curve", "lagrange_weights",
 ]

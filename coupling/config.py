@@ -345,8 +345,8 @@ class CouplingConfig:
             allgather per array).
         extrapolation_order: Initial guess of a time window's data: 0 = the
             previous window's converged values, 1 = their linear extrapolation
-            from the last two windows (variable dt allowed; preCICE's
-            ``extrapolation-order``).
+            from the last two windows, 2 = quadratic from the last three
+            (variable dt allowed; preCICE's ``extrapolation-order``).
         state_reload: When an implicit scheme restores the participants'
             states in a time window: ``"iteration"`` = before every iteration
             after the first (preCICE's checkpoint reading: each iteration
@@ -376,8 +376,8 @@ class CouplingConfig:
         where = "coupling"
         _choice(where, "state_reload", self.state_reload, STATE_RELOADS)
         _integer(where, "extrapolation_order", self.extrapolation_order, minimum=0)
-        if self.extrapolation_order > 1:
-            raise ValueError(f"{where}.extrapolation_order = {self.extrapolation_order} must be 0 or 1")
+        if self.extrapolation_order > 2:
+            raise ValueError(f"{where}.extrapolation_order = {self.extrapolation_order} must be 0, 1 or 2")
         _choice(where, "scheme", self.scheme, SCHEMES)
         if isinstance(self.order, str) or not all(isinstance(o, str) and o for o in self.order):
             raise ValueError(f"{where}.order = {self.order!r} must be a list of participant names")

@@ -24,7 +24,8 @@ restored (``load_state``) before every further one (``state_reload =
 previous iteration's state and states are restored only when a window is
 retaken), and ``advance(t, dt)`` is called before every solve.  The initial
 guess of a window is the last value of the previous one (constant
-extrapolation; ``extrapolation_order = 1``: linear).
+extrapolation; ``extrapolation_order = 1``: linear, ``2``: quadratic, from the last
+two or three windows).
 
 With a residual ``r = x̃ - x``, the iteration stops with
 :class:`CouplingDivergedError` if a data's values or residual are not finite,
@@ -51,6 +52,7 @@ from coupling.acceleration import Acceleration, build_acceleration
 from coupling.config import CouplingConfig, load_config
 from coupling.convergence import ConvergenceMeasure, MeasureValue, build_measure
 from coupling.errors import CouplingDivergedError, CouplingNotConvergedError
+from coupling.extrapolation import lagrange_weights
 from coupling.layout import VectorLayout
 from coupling.mapping import Mapping as DataMapping
 from coupling.mapping import as_points, build_mapping
@@ -143,7 +145,7 @@ class CouplingScheme:
         self.measures = self._build_measures()
         self.time = 0.0
         self.window = 0
-        # converged values at the end of the last two windows, with their times (extrapolation)
+        # converged values at the end of the last windows, with their times (extrapolation)
         self.window_ends: list[tuple[float, dict[str, np.ndarray]]] = []
         self.history: list[WindowRecord] = []
         self.recording: Recording | None = Recording() if self.config.record_data else None
@@ -416,17 +418,20 @@ class CouplingScheme:
         return text
 
     def _extrapolate(self, t: float, dt: float) -> None:
-        """Linear extrapolation of the last two windows' end values to t + dt (extrapolation_order 1)."""
-        if self.config.extrapolation_order == 0 or len(self.window_ends) < 2:
+        """The initial guess of the window [t, t + dt]: the Lagrange polynomial through the last
+        ``extrapolation_order + 1`` windows' end values (fewer at the start) evaluated at t + dt."""
+        ends = self.window_ends[-(self.config.extrapolation_order + 1):]
+        if len(ends) < 2 or abs(ends[-1][0] - t) > 1e-12 * max(abs(t), dt):
             return
-        (t0, v0), (t1, v1) = self.window_ends[-2], self.window_ends[-1]
-        if abs(t1 - t) > 1e-12 * max(abs(t), dt) or t1 <= t0:
+        times = [te for te, _ in ends]
+        if any(b <= a for a, b in zip(times[:-1], times[1:])):
             return
-        ratio = dt / (t1 - t0)
-        self.values = {n: v1[n] + ratio * (v1[n] - v0[n]) for n in self.values}
+        weights = lagrange_weights(times, t + dt)
+        self.values = {n: sum(w * v[n] for w, (_, v) in zip(weights, ends)) for n in self.values}
 
     def _window_end(self, t_end: float) -> None:
-        self.window_ends = (self.window_ends + [(t_end, {n: v.copy() for n, v in self.values.items()})])[-2:]
+        kept = max(self.config.extrapolation_order + 1, 2)
+        self.window_ends = (self.window_ends + [(t_end, {n: v.copy() for n, v in self.values.items()})])[-kept:]
 
     def _run_window(self, t: float | None, dt: float | None) -> WindowRecord:
         transient = t is not None

@@ -220,8 +220,8 @@ def coupling_config(scheme: str = "serial", acceleration: str = "iqn-ils", *, li
     (:func:`default_relaxation_prior`; it is derived for that split), and the secant columns of the
     last 4 solves are kept (``time_windows_reused``; no effect on one solve,
     reused by a Ca sweep, see ``Device.solve(reuse=...)``).
-    Time-dependent runs (``transient``): each window starts from the linear
-    extrapolation of the last two, every iteration solves from the window's
+    Time-dependent runs (``transient``): each window starts from the quadratic
+    extrapolation of the last three (docs/transient.md), every iteration solves from the window's
     checkpoint (the library's ``state_reload = "iteration"``, so that each
     solve is one function of its interface data; docs/transient.md measures
     the alternative), and IQN-ILS keeps the secant columns of
@@ -261,7 +261,7 @@ def coupling_config(scheme: str = "serial", acceleration: str = "iqn-ils", *, li
               "order": order, "max_iterations": max_iterations, "acceleration": acc,
               "convergence": [{"type": "relative", "limit": limit, "data": "*"}]}
     if transient:
-        config["extrapolation_order"] = 1
+        config["extrapolation_order"] = 2
     for key, value in (overrides or {}).items():
         if key == "acceleration" and isinstance(value, typing.Mapping):
             if value.get("type", acc["type"]) != acc["type"]:

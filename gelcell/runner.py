@@ -56,17 +56,6 @@ class ReuseStore:
         self.states = [(c, st) for c, st in self.states if c != float(ca)]
         self.states = (self.states + [(float(ca), state)])[-3:]
 
-    def _weights(self, ca: float) -> list[float]:
-        cs = [c for c, _ in self.states]
-        weights = []
-        for i, ci in enumerate(cs):
-            w = 1.0
-            for j, cj in enumerate(cs):
-                if j != i:
-                    w *= (float(ca) - cj) / (ci - cj)
-            weights.append(w)
-        return weights
-
     def prediction(self, ca: float) -> dict | None:
         """The newest state with its interface data and participant states extrapolated to ``ca``.
 
@@ -87,11 +76,7 @@ class ReuseStore:
         used = self.states if reach <= 2.0 else self.states[-2:] if reach <= 10.0 else self.states[-1:]
         if len(used) < 2:
             return newest
-        saved, self.states = self.states, used
-        try:
-            weights = self._weights(ca)
-        finally:
-            self.states = saved
+        weights = cp.lagrange_weights([c for c, _ in used], ca)
 
         def combine(parts):
             first = parts[0]

@@ -129,7 +129,7 @@ def test_reuse_of_past_windows_lowers_the_iteration_count():
     {"type": "iqn-imvj", "initial_relaxation": 0.1, "preconditioner": {"type": "value", "freeze_after": 4}},
     {"type": "aitken", "initial_relaxation": 0.1},
 ], ids=lambda a: a["type"])
-@pytest.mark.parametrize("extrapolation", [0, 1])
+@pytest.mark.parametrize("extrapolation", [0, 1, 2])
 def test_restart_reproduces_the_uninterrupted_run(scheme_name, acceleration, extrapolation, shared_tmp_path):
     """Bit for bit (1e-12) and with the same iterations: the columns, weights and extrapolation history."""
     if scheme_name == "parallel-implicit" and acceleration["type"] == "aitken":
@@ -235,7 +235,7 @@ def _monolithic_backward_euler(problem, times):
     return {"Gamma/a": u[:, None], "Gamma/b": v[:, None]}
 
 
-@pytest.mark.parametrize("extrapolation", [0, 1])
+@pytest.mark.parametrize("extrapolation", [0, 1, 2])
 def test_advance_window_with_variable_steps(extrapolation):
     """advance_window takes any dt; the result is the backward-Euler answer on that grid."""
     problem = transient_problem()
@@ -249,6 +249,69 @@ def test_advance_window_with_variable_steps(extrapolation):
         np.testing.assert_allclose(scheme.latest(name), value, rtol=1e-9, err_msg=name)
     with pytest.raises(ValueError, match="dt"):
         scheme.advance_window(0.0)
+
+
+class _Signal(cp.Participant):
+    """Writes ``a = q(t + dt)``, a prescribed polynomial in time, whatever it reads (``b``)."""
+
+    name = "signal"
+
+    def __init__(self, coefficients):
+        self.coefficients, self.t_end = np.asarray(coefficients, dtype=float), 0.0
+
+    def interface_points(self, mesh_name):
+        return np.array([[0.0, 0.0], [1.0, 0.0]])
+
+    def save_state(self):
+        return None
+
+    def load_state(self, state):
+        pass
+
+    def advance(self, t, dt):
+        self.t_end = t + dt
+
+    def solve(self, inputs):
+        q = np.polyval(self.coefficients[::-1], self.t_end)
+        return {"a": np.array([[q, 2.0 * q], [-q, 0.5]])}
+
+
+class _Echo(_Signal):
+    """Writes ``b = a``."""
+
+    name = "echo"
+
+    def solve(self, inputs):
+        return {"b": inputs["a"].copy()}
+
+
+@pytest.mark.parametrize("order, degree", [(1, 1), (2, 2)])
+def test_extrapolation_is_exact_for_data_polynomial_in_time(order, degree):
+    """Lagrange extrapolation of order k reproduces data of degree k in t on unequal windows: from
+    window k + 1 on, the initial guess is the window's answer and one iteration confirms it; one
+    degree more leaves a residual to iterate away (2 iterations)."""
+    steps = [0.1, 0.15, 0.05, 0.2, 0.1, 0.3, 0.12]
+    for q_degree, expected in ((degree, 1), (degree + 1, 2)):
+        coefficients = [0.3, -1.0, 2.0, 1.5][:q_degree + 1]
+        data = [cp.Data("a", "G", 2, "signal", ("echo",)), cp.Data("b", "G", 2, "echo", ("signal",))]
+        config = {"scheme": "serial-implicit", "order": ["signal", "echo"], "verbose": False,
+                  "max_iterations": 20, "convergence": [{"type": "relative", "limit": 1e-12}],
+                  "acceleration": {"type": "constant", "relaxation": 1.0}, "extrapolation_order": order}
+        scheme = cp.build_scheme(config, [_Signal(coefficients), _Echo(coefficients)], data)
+        iterations = [scheme.advance_window(dt).iterations for dt in steps]
+        assert iterations[order + 1:] == [expected] * (len(steps) - order - 1), (q_degree, iterations)
+
+
+def test_lagrange_weights():
+    """Weights of the polynomial through the nodes: they reproduce t^2 at x, sum to 1, and equal
+    nodes are refused."""
+    nodes, x = [0.0, 0.3, 0.4], 0.65
+    w = cp.lagrange_weights(nodes, x)
+    assert sum(w) == pytest.approx(1.0, abs=1e-14)
+    assert np.dot(w, np.square(nodes)) == pytest.approx(x * x, abs=1e-14)
+    assert cp.lagrange_weights([1.0, 2.0], 3.0) == pytest.approx([-1.0, 2.0])
+    with pytest.raises(ValueError, match="distinct"):
+        cp.lagrange_weights([1.0, 1.0], 2.0)
 
 
 def test_linear_extrapolation_lowers_the_iteration_count():
