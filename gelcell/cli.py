@@ -27,8 +27,10 @@ import typing
 # MPI_Init (0.4 s) would probe the high-speed network libraries (psm, psm2, libfabric) and start a
 # helper daemon for MPI_Comm_spawn, which gelcell never calls: ob1 and no daemon make it 0.03 s.
 # Only for this process's MPI_Init (a setting the user made is kept); its children do not inherit them.
+# Not under a launcher (mpirun, srun, a PMI server): there the transport is the launcher's choice.
+_LAUNCHED = ("OMPI_COMM_WORLD_SIZE", "PMIX_RANK", "PMI_RANK", "PMI_SIZE", "SLURM_PROCID")
 _SINGLETON_MCA = {"OMPI_MCA_pml": "ob1", "OMPI_MCA_ess_singleton_isolated": "1"}
-_SINGLETON_MCA = {} if "OMPI_COMM_WORLD_SIZE" in os.environ else \
+_SINGLETON_MCA = {} if any(k in os.environ for k in _LAUNCHED) else \
     {k: v for k, v in _SINGLETON_MCA.items() if k not in os.environ}
 os.environ.update(_SINGLETON_MCA)
 from mpi4py import MPI  # noqa: E402
