@@ -47,10 +47,10 @@ import numpy as np
 import scipy.sparse as sp
 from mpi4py import MPI
 
-from coupling.acceleration import build_acceleration
+from coupling.acceleration import build_acceleration, relaxation_prior_diagonal
 from coupling.config import load_config
 from coupling.mapping import build_mapping, order_along_curve
-from gelcell.device import Device, coupling_config, gamma2_stiffness_ratio
+from gelcell.device import Device, coupling_config, default_relaxation_prior
 from gelcell.parameters import CaseParameters
 from gelcell.study import StudyCase
 
@@ -200,27 +200,24 @@ def main() -> None:
     print(f"{args.case} cell x{args.cell_moduli:g} gel x{args.gel_moduli:g}: {n} unknowns (surrogate {nc}), "
           f"eigenvalues in [{ev.real.min():.2f}, {ev.real.max():.2f}], max |imag| {abs(ev.imag).max():.1e}, "
           f"extracted in {time.perf_counter() - t0:.0f} s")
-    rho = gamma2_stiffness_ratio(params(args.mesh_size))
+    # the device's Gamma2 relaxation prior, as the accelerator's J0 (a diagonal) on either layout
+    prior = default_relaxation_prior(params(args.mesh_size))
 
-    def relax(lay, size):
-        d = np.zeros(size)
-        for name, s in zip(lay.names, lay.slices()):
-            if name.endswith("/force"):
-                d[s] = 1.0 - 1.0 / (1.0 + rho)
-        return np.diag(d)
+    def relax(lay):
+        return np.diag(relaxation_prior_diagonal(prior, lay))
 
     prolong, restrict = transfer(pts, pts_c, layout.names)
-    rest = relax(layout, n) @ (np.eye(n) - prolong @ restrict)
+    rest = relax(layout) @ (np.eye(n) - prolong @ restrict)
     exact_c = ac @ np.linalg.inv(ac - np.eye(nc))
-    its_c, acc_c, _ = iterate(ac, xc, layout_c, prior=relax(layout_c, nc))
+    its_c, acc_c, _ = iterate(ac, xc, layout_c, prior=relax(layout_c))
     w = acc_c.preconditioner.weights
     q, r = np.linalg.qr(w[:, None] * acc_c.V)
     z = np.linalg.solve(r, q.T) * w[None, :]
-    j0 = relax(layout_c, nc)
+    j0 = relax(layout_c)
     secant_c = j0 + (acc_c.W - j0 @ acc_c.V) @ z
     rows = {
         "iqn-ils": iterate(a, xs, layout)[0],
-        "prior": iterate(a, xs, layout, prior=relax(layout, n))[0],
+        "prior": iterate(a, xs, layout, prior=relax(layout))[0],
         "surrogate exact": iterate(a, xs, layout, prior=prolong @ exact_c @ restrict + rest, x0=prolong @ xc)[0],
         "surrogate exact, no prior": iterate(a, xs, layout, prior=prolong @ exact_c @ restrict, x0=prolong @ xc)[0],
         f"surrogate iqn ({its_c} coarse iterations)":
@@ -228,7 +225,7 @@ def main() -> None:
     }
     interfaces = sorted({name.split("/")[0] for name in layout.names})
     fluid_gel = {g for g in interfaces if g != "Gamma2"}
-    gamma2 = np.diag(relax(layout, n))
+    gamma2 = relaxation_prior_diagonal(prior, layout)
     rows.update({
         "exact fluid-gel block, Gamma2 prior": iterate(a, xs, layout, prior=exact_blocks(
             a, layout, [fluid_gel], gamma2))[0],
@@ -238,7 +235,6 @@ def main() -> None:
             a, layout, [fluid_gel, {"Gamma2"}], gamma2))[0],
         "exact": iterate(a, xs, layout, prior=a @ np.linalg.inv(a - np.eye(n)))[0],
     })
-    prior = {name: 1.0 / (1.0 + rho) for name in layout.names if name.endswith("/force")}
     rows.update(reuse_rows(a, xs, layout, prior))
     for name, its in rows.items():
         print(f"  {name:72s} {its if its is not None else '>300'}")
