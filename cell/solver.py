@@ -38,11 +38,12 @@ from petsc4py import PETSc
 import basix
 import ufl
 from dolfinx import fem
+from dolfinx.fem import petsc as fem_petsc
 
 from cell import forms
 from femtools.functions import quadrature_measure, von_mises
 from femtools.interface import InterfaceNodes
-from femtools.linalg import NewtonSolver, assemble_residual_vector, jacobian_at_rest
+from femtools.linalg import NewtonSolver, assemble_residual_vector, gather_csr, jacobian_at_rest
 from femtools.solver import FieldSolver
 
 __all__ = ["NeoHookeanCellSolver"]
@@ -220,12 +221,14 @@ class NeoHookeanCellSolver(FieldSolver):
 
         bcs = []
         self._interface_bc_values: dict[str, fem.Function] = {}
+        self._interface_bcs: dict[str, fem.DirichletBCMetaClass] = {}
         for iname, tags in interfaces.items():
             tags = _tag_list(tags)
             facets = self._facets(tags, f"interfaces[{iname!r}]")
             g = fem.Function(self.V, name=f"u_{iname}")
             bcs.append(fem.dirichletbc(g, fem.locate_dofs_topological(self.V, self._fdim, facets)))
             self._interface_bc_values[iname] = g
+            self._interface_bcs[iname] = bcs[-1]
             self._add_interface(iname, InterfaceNodes(self.V, facet_tags, tags), {"displacement": 2})
         for k, entry in enumerate(symmetry):
             tags, comp = _unpack(entry, 2, f"symmetry[{k}]")
@@ -363,12 +366,41 @@ class NeoHookeanCellSolver(FieldSolver):
             self._check_rigid_modes()
 
     def interface_data(self, name: str) -> dict[str, np.ndarray]:
-        """``{"force": (N, 2)}``: nodal forces on the cell (units s * L0), see the class docstring."""
+        """``{"force": (N, 2), "displacement": (N, 2)}``: nodal forces on the cell (units s * L0, see the
+        class docstring) and the nodal displacement there (units of d)."""
         nodes = self.interface_nodes(name)
-        out = {"force": nodes.from_array(self._newton.state_residual().array)}
-        if name in self._robin:
-            out["displacement"] = nodes.from_function(self.u)
-        return out
+        return {"force": nodes.from_array(self._newton.state_residual().array),
+                "displacement": nodes.from_function(self.u)}
+
+    def interface_stiffness(self, name: str) -> np.ndarray:
+        """The cell's Steklov-Poincare operator on Dirichlet interface ``name``, linearised at rest.
+
+        K (2N, 2N), rows and columns ``2 i + c`` (node i of ``interface_points(name)``,
+        component c): the nodal forces on the cell (``interface_data(name)["force"]``)
+        that hold a nodal displacement u of the interface, the rest of the cell free
+        (its other conditions kept), F = K u, units of s L0 per unit of d.  The Schur
+        complement K_GG - K_GI K_II^-1 K_IG of the Jacobian at rest onto the
+        interface dofs; symmetric, positive semi-definite.  Rows and columns of dofs
+        another condition fixes (a symmetry line through the interface) are zero.
+        """
+        if name not in self._interface_bcs:
+            raise KeyError(f"{self.name}: {name!r} is not a Dirichlet interface; they are "
+                           f"{sorted(self._interface_bcs)}")
+        import scipy.sparse.linalg
+        others = [bc for bc in self.bcs if bc is not self._interface_bcs[name]]
+        A = fem_petsc.assemble_matrix(self._newton.J_reference, bcs=others)
+        A.assemble()
+        K = gather_csr(A).tocsc()
+        A.destroy()
+        dofs = self.interface_nodes(name).global_dofs(self.V, bcs=others).ravel()
+        on = dofs >= 0
+        gamma = dofs[on]
+        inner = np.setdiff1d(np.arange(K.shape[0]), gamma)
+        K_gi = K[gamma][:, inner]
+        coupled = scipy.sparse.linalg.splu(K[inner][:, inner]).solve(K_gi.T.toarray())
+        out = np.zeros((dofs.size, dofs.size))
+        out[np.ix_(on, on)] = K[gamma][:, gamma].toarray() - K_gi @ coupled
+        return 0.5 * (out + out.T)
 
     # -- load updates (tests, load stepping) ------------------------------------
     def set_dirichlet(self, index: int, value) -> None:

@@ -87,6 +87,22 @@ class InterfaceNodes:
             d = self._parent[d]
         return d if component is None else d[:, component]
 
+    def global_dofs(self, space: fem.FunctionSpace, parent: bool = False, bcs=()) -> np.ndarray:
+        """``(N, bs)`` global unrolled dofs of the interface nodes in ``space``, replicated.
+
+        ``space``: ``V`` itself, or with ``parent=True`` the parent (mixed) space of the
+        ``parent_dofs`` map.  Dofs that a Dirichlet condition of ``bcs`` fixes are -1.
+        """
+        imap, bs = space.dofmap.index_map, space.dofmap.index_map_bs
+        local = self.dofs(parent=parent)
+        glob = imap.local_to_global((local // bs).ravel().astype(np.int32)).reshape(local.shape) * bs + local % bs
+        fixed = np.zeros((imap.size_local + imap.num_ghosts) * bs, dtype=bool)
+        for bc in bcs:
+            fixed[bc.dof_indices()[0]] = True
+        glob = np.where(fixed[local], -1, glob)
+        # gathered as floats: exact for any dof count below 2**53
+        return np.rint(self.gather(glob.astype(float))).astype(np.int64)
+
     def gather(self, local_values: np.ndarray) -> np.ndarray:
         """Replicated ``(N, bs)`` array from values given at ``local_blocks`` (owned rows used)."""
         local_values = np.asarray(local_values)

@@ -28,7 +28,7 @@ from femtools.errors import NewtonError, SingularSystemError
 
 __all__ = ["DirectSolver", "BlockTriangularSolver", "is_symmetric", "LinearSolver", "NewtonSolver", "SolverStats",
            "direct_solver", "assemble_residual_vector", "global_norm", "jacobian_at_rest", "SingularSystemError",
-           "NewtonError"]
+           "NewtonError", "gather_csr"]
 
 _counter = itertools.count()
 _ICNTL = re.compile(r"^mat_mumps_icntl_(\d+)$")
@@ -275,15 +275,19 @@ class BlockTriangularSolver:
 
 
 def _assemble_and_factorize(A: PETSc.Mat, form, bcs, solver: DirectSolver, stats: SolverStats,
-                            sub=None) -> PETSc.Mat:
+                            sub=None, assemble=None) -> PETSc.Mat:
     """Assemble ``form`` into ``A`` (Dirichlet rows: identity), factorise it; returns the factorised matrix.
 
-    ``sub = (IS, previous submatrix)`` factorises only the rows and columns in the IS.
+    ``sub = (IS, previous submatrix)`` factorises only the rows and columns in the IS;
+    ``assemble(A, form)`` replaces the plain assembly.
     """
     t0 = time.perf_counter()
-    A.zeroEntries()
-    fem_petsc.assemble_matrix(A, form, bcs=bcs)
-    A.assemble()
+    if assemble is not None:
+        assemble(A, form)
+    else:
+        A.zeroEntries()
+        fem_petsc.assemble_matrix(A, form, bcs=bcs)
+        A.assemble()
     operator = A
     if sub is not None:
         rows, previous = sub
@@ -432,6 +436,11 @@ class NewtonSolver:
     substitution (:class:`BlockTriangularSolver`) with a factorisation per
     diagonal block; otherwise, and for the exact Jacobian, by one LU.
 
+    Interface stiffness (:meth:`set_interface_stiffness`): a dense matrix K
+    over a few dofs (e.g. the Steklov-Poincare operator of a neighbouring
+    body on a shared interface) added to the residual, ``F(u) + K u_I``, and
+    to every Jacobian; a Robin condition whose operator is not a form.
+
     Cheap residuals.  ``F_data`` (optional) is the part of the residual that
     carries interface or load data (boundary integrals, cheap to assemble);
     the residual is ``F + F_data``.  The state part ``F`` (the bulk) is
@@ -526,6 +535,7 @@ class NewtonSolver:
         self._have_jacobian = False
         self._exact = self.J_reference is None or reuse == "never"   # which Jacobian is (to be) kept
         self._load_dofs, self._load_values = np.empty(0, dtype=np.int32), np.empty(0)
+        self._stiffness = None
 
     @property
     def num_active_dofs(self) -> int:
@@ -547,9 +557,7 @@ class NewtonSolver:
     def _factorize_blocks(self) -> bool:
         """Assemble J_reference; factorise it block by block if it is block lower-triangular."""
         t0 = time.perf_counter()
-        self.A.zeroEntries()
-        fem_petsc.assemble_matrix(self.A, self.J_reference, bcs=self.bcs)
-        self.A.assemble()
+        self._assemble_matrix(self.A, self.J_reference)
         self.stats["assemble_time"] += time.perf_counter() - t0
         t0 = time.perf_counter()
         if not self._blocks.factorize(self.A):
@@ -567,7 +575,8 @@ class NewtonSolver:
                 self._have_jacobian = True
                 return
             self._linear = self.solver
-            operator = _assemble_and_factorize(self.A, form, self.bcs, self.solver, self.stats, sub)
+            operator = _assemble_and_factorize(self.A, form, self.bcs, self.solver, self.stats, sub,
+                                               assemble=self._assemble_matrix)
         except SingularSystemError as exc:
             if self.stats["factorizations"] == 0:
                 raise           # singular from the start: a missing boundary condition
@@ -587,6 +596,62 @@ class NewtonSolver:
         """
         self._load_dofs = np.asarray(dofs, dtype=np.int32)
         self._load_values = np.asarray(values, dtype=float)
+
+    def set_interface_stiffness(self, dofs: np.ndarray, K: np.ndarray) -> None:
+        """Add ``K u_I`` to the residual and ``K`` to the Jacobian, ``u_I = u[dofs]``.
+
+        ``dofs`` (M,): GLOBAL dof indices, the same on every rank; a negative
+        entry leaves that row and column out (e.g. a Dirichlet dof).  ``K``:
+        (M, M), replicated.  Each rank adds the rows it owns.  The kept
+        Jacobian is factorised again at the next solve.
+        """
+        dofs = np.asarray(dofs, dtype=np.int64)
+        K = np.array(K, dtype=float)
+        if K.shape != (dofs.size, dofs.size):
+            raise ValueError(f"{self.name}: the interface stiffness is {K.shape}, its dofs {dofs.shape}")
+        if self.stats["factorizations"]:
+            raise RuntimeError(f"{self.name}: set the interface stiffness before the first solve")
+        use = dofs >= 0
+        K, dofs = K[np.ix_(use, use)], dofs[use]
+        start, end = self.A.getOwnershipRange()
+        mine = (dofs >= start) & (dofs < end)
+        seq = PETSc.Vec().createSeq(dofs.size, comm=MPI.COMM_SELF)
+        scatter = PETSc.Scatter().create(self.u.vector, PETSc.IS().createGeneral(dofs.astype(PETSc.IntType),
+                                                                                  comm=MPI.COMM_SELF), seq, None)
+        rows = dofs[mine].astype(PETSc.IntType)
+        # K alone, as a matrix of A's layout: added to A's first assembly with A's pattern extended
+        nnz = np.zeros(end - start, dtype=PETSc.IntType)
+        nnz[dofs[mine] - start] = dofs.size
+        alone = PETSc.Mat().createAIJ(self.A.getSizes(), nnz=(nnz, nnz), comm=self.A.getComm())
+        alone.setValues(rows, dofs.astype(PETSc.IntType), K[mine], addv=PETSc.InsertMode.ADD_VALUES)
+        alone.assemble()
+        self._stiffness = dict(dofs=dofs.astype(PETSc.IntType), rows=rows, K_rows=K[mine],
+                               local_rows=(dofs[mine] - start).astype(np.int32), seq=seq, scatter=scatter,
+                               matrix=alone, in_pattern=False)
+        self.invalidate_jacobian()
+
+    def _assemble_matrix(self, A: PETSc.Mat, form) -> None:
+        """Assemble ``form`` into ``A`` (Dirichlet rows: identity), plus the interface stiffness."""
+        A.zeroEntries()
+        st = self._stiffness
+        if st is not None and st["in_pattern"] and st["rows"].size:
+            A.setValues(st["rows"], st["dofs"], st["K_rows"], addv=PETSc.InsertMode.ADD_VALUES)
+        fem_petsc.assemble_matrix(A, form, bcs=self.bcs)
+        A.assemble()
+        if st is not None and not st["in_pattern"]:
+            # once: the union of the two patterns (setting K's entries into A would reallocate
+            # A's storage once per row that overflows); A keeps it for later assemblies
+            A.axpy(1.0, st["matrix"], structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+            st["in_pattern"] = True
+
+    def _stiffness_force(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(owned local rows, K u_I at them), or None without an interface stiffness."""
+        st = self._stiffness
+        if st is None:
+            return None
+        st["scatter"].scatter(self.u.vector, st["seq"], addv=PETSc.InsertMode.INSERT_VALUES,
+                              mode=PETSc.ScatterMode.FORWARD)
+        return st["local_rows"], st["K_rows"] @ st["seq"].array_r
 
     def _current_state_key(self) -> list[np.ndarray]:
         functions, constants = self._state_sources
@@ -643,6 +708,10 @@ class NewtonSolver:
             # after the ghost update, so that each global dof receives its load exactly once
             with self.b.localForm() as loc:
                 loc.array[self._load_dofs] -= self._load_values
+        stiffness = self._stiffness_force()
+        if stiffness is not None:
+            with self.b.localForm() as loc:
+                loc.array[stiffness[0]] += stiffness[1]
         fem_petsc.set_bc(self.b, self.bcs, self.u.vector, -1.0)
         return self.b
 
@@ -730,6 +799,18 @@ class NewtonSolver:
                 self._exact = True
             previous = rel
         raise NewtonError(self.name, f"no convergence in {self.max_it} iterations", self.history)
+
+
+def gather_csr(A: PETSc.Mat) -> "scipy.sparse.csr_matrix":
+    """The whole of an assembled PETSc matrix as a scipy CSR matrix on every rank (for small matrices)."""
+    import scipy.sparse
+    start = A.getOwnershipRange()[0]
+    indptr, indices, values = A.getValuesCSR()
+    rows = np.repeat(np.arange(start, start + len(indptr) - 1), np.diff(indptr))
+    comm = A.getComm().tompi4py()
+    if comm.size > 1:
+        rows, indices, values = (np.hstack(comm.allgather(x)) for x in (rows, indices, values))
+    return scipy.sparse.csr_matrix((values, (rows, indices)), shape=A.getSize())
 
 
 def jacobian_at_rest(F: ufl.Form, u: fem.Function, coefficients=()) -> ufl.Form:

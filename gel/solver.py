@@ -54,6 +54,9 @@ Boundary conditions (n is the gel's outward normal everywhere):
   ``force`` (N, 2): NODAL forces ON the gel from the cell (entries of a
   consistent load vector, units of s L0, not a traction density); they enter
   the mixture equation.  Output ``displacement`` (N, 2): nodal u in units of d L0.
+  With an interface stiffness K (``set_interface_stiffness``, a Robin
+  condition) the load is ``force + K (u* - u)``, u* the input
+  ``displacement`` (N, 2) (units of d L0; unused without K).
 * ``tractions`` [(tags, value)]: a dead load t on the mixture equation,
   (phi_f sigma_f + phi_s sigma_s - p I) n = t (stress unit s), e.g. a
   permeable piston on a drained surface (Terzaghi).
@@ -80,6 +83,7 @@ import time
 import typing
 
 import numpy as np
+import scipy.linalg
 import scipy.spatial
 
 from mpi4py import MPI
@@ -225,6 +229,7 @@ class PoroelasticGelSolver(FieldSolver):
         fluid_interfaces = dict(fluid_interfaces or {})
         cell_interfaces = dict(cell_interfaces or {})
         self._fluid, self._cell = {}, {}
+        self._stiffness: dict[str, tuple[np.ndarray, np.ndarray]] = {}     # Robin operators of cell interfaces
         clash = set(fluid_interfaces) & set(cell_interfaces)
         if clash:
             raise ValueError(f"interface names used both as fluid and cell interfaces: {sorted(clash)}")
@@ -346,8 +351,36 @@ class PoroelasticGelSolver(FieldSolver):
         dofs = nodes.dofs(parent=True)                   # (n_local, 2) mixed-space dofs of u
         keep = np.all(dofs < n_owned, axis=1)            # owned by this rank in the MIXED space
         self._cell[iname] = dict(tags=tags, nodes=nodes, dofs=dofs[keep], rows=nodes.index[keep],
-                                 force=np.zeros((nodes.size, 2)))
-        self._add_interface(iname, nodes, {"force": 2})
+                                 force=np.zeros((nodes.size, 2)), displacement=np.zeros((nodes.size, 2)))
+        self._add_interface(iname, nodes, {"force": 2, "displacement": 2})
+
+    def set_interface_stiffness(self, name: str, stiffness: np.ndarray) -> None:
+        """A Robin condition on cell interface ``name``: the load there becomes ``force + K (u* - u)``.
+
+        ``stiffness`` K: (2N, 2N), rows and columns ``2 i + c`` (node i of
+        ``interface_points(name)``, component c), units of s L0 per unit of
+        d L0: the neighbour's Steklov-Poincare operator (the nodal forces it
+        needs to hold a nodal displacement).  u* is the input ``displacement``
+        (the neighbour's own displacement there, with which it exerts
+        ``force``).  The gel then carries the neighbour's stiffness itself: a
+        Dirichlet-Neumann iteration on the interface converges at once for a
+        linear neighbour, and at the fixed point u = u* and the load is
+        ``force`` again.  K is symmetrised; entries on Dirichlet dofs of the
+        gel are left out.
+        """
+        if name not in self._cell:
+            raise KeyError(f"{self.name}: {name!r} is not a cell interface; cell interfaces: {sorted(self._cell)}")
+        nodes = self._cell[name]["nodes"]
+        K = np.asarray(stiffness, dtype=float)
+        if K.shape != (2 * nodes.size, 2 * nodes.size):
+            raise ValueError(f"{self.name}: the stiffness of {name!r} must be ({2 * nodes.size}, "
+                             f"{2 * nodes.size}) for its {nodes.size} nodes, got {K.shape}")
+        if not np.all(np.isfinite(K)):
+            raise ValueError(f"{self.name}: the stiffness of {name!r} contains NaN or Inf")
+        self._stiffness[name] = (nodes.global_dofs(self.W, parent=True, bcs=self.bcs).ravel(), 0.5 * (K + K.T))
+        # one block per interface: cells do not touch each other
+        self._newton.set_interface_stiffness(np.hstack([d for d, _ in self._stiffness.values()]),
+                                             scipy.linalg.block_diag(*[k for _, k in self._stiffness.values()]))
 
     def _add_tractions(self, tractions, z) -> ufl.Form:
         """Dead loads on the mixture equation: - int t . z ds on each entry's facets."""
@@ -577,11 +610,11 @@ class PoroelasticGelSolver(FieldSolver):
             else:
                 data["nodes"].to_function(values, data["V"])
         else:
-            self._cell[interface]["force"] = values.copy()
+            self._cell[interface][key] = values.copy()
 
     def _solve(self) -> None:
         dofs = [d["dofs"].ravel() for d in self._cell.values()]
-        vals = [d["force"][d["rows"]].ravel() for d in self._cell.values()]
+        vals = [self._cell_load(name)[d["rows"]].ravel() for name, d in self._cell.items()]
         self._newton.set_nodal_loads(np.hstack(dofs).astype(np.int32) if dofs else np.empty(0, np.int32),
                                      np.hstack(vals) if vals else np.empty(0))
         its = self._newton.solve(linear_path=self.linear_path)
@@ -590,6 +623,14 @@ class PoroelasticGelSolver(FieldSolver):
         self.timing["newton_iterations"] += its
         log.debug("%s: Newton converged in %d iterations, corrections %s", self.name, its,
                   self._newton.history)
+
+    def _cell_load(self, name: str) -> np.ndarray:
+        """The nodal load on cell interface ``name`` but for -K u: force + K u* (N, 2)."""
+        d = self._cell[name]
+        if name not in self._stiffness:
+            return d["force"]
+        K = self._stiffness[name][1]
+        return d["force"] + (K @ d["displacement"].ravel()).reshape(d["force"].shape)
 
     def interface_data(self, name: str) -> dict[str, np.ndarray]:
         """Outputs on interface ``name`` (see the module docstring).

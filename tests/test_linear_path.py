@@ -31,7 +31,7 @@ from cell import NeoHookeanCellSolver
 from cell import meshes
 from femtools.functions import quadrature_measure
 from femtools.interface import InterfaceMass, InterfaceNodes
-from femtools.linalg import BlockTriangularSolver, DirectSolver, is_symmetric
+from femtools.linalg import BlockTriangularSolver, DirectSolver, NewtonSolver, is_symmetric
 from gel import GelParameters, PoroelasticGelSolver
 from gel.testing import BOTTOM, LEFT, RIGHT, TOP, rectangle
 
@@ -304,3 +304,57 @@ def test_symmetric_operators_are_factorised_by_ldlt_and_others_by_lu():
         solver.solve(b, x)
         expected = np.linalg.solve(dense, rhs)[start:end]
         assert np.abs(x.array_r - expected).max() <= 1e-12 * np.abs(expected).max()
+
+
+# -- interface stiffness: a Robin condition whose operator is a matrix ----------------------------
+def test_interface_stiffness_equals_the_robin_form():
+    """K = kappa M_Gamma added by ``set_interface_stiffness`` solves as the form kappa int u.v ds does.
+
+    -div grad u = f, u = 0 on the left edge, kappa u + du/dn = 0 on the top, natural elsewhere:
+    once with the Robin term in the form, once with the interface mass matrix as the stiffness
+    (the top's left end is a Dirichlet node: its row and column are left out).
+    """
+    msh, ft = rectangle(0.0, 0.0, 1.0, 0.5, 6, 4)
+    V = fem.VectorFunctionSpace(msh, ("Lagrange", 2))
+    ds = quadrature_measure("ds", msh, ft, degree=4)
+    v = ufl.TestFunction(V)
+    f = ufl.as_vector([1.0 + ufl.SpatialCoordinate(msh)[1], -0.5])
+    kappa = 3.0
+    nodes = InterfaceNodes(V, ft, TOP)
+    mass = InterfaceMass(nodes, V, ds(TOP), np.ones((nodes.size, 2), dtype=bool)).matrix.toarray()
+    solutions = []
+    for robin_form in (True, False):
+        u = fem.Function(V)
+        bc = fem.dirichletbc(np.zeros(2), fem.locate_dofs_topological(V, 1, ft.find(LEFT)), V)
+        F = ufl.inner(ufl.grad(u), ufl.grad(v)) * ufl.dx - ufl.inner(f, v) * ufl.dx
+        if robin_form:
+            F += kappa * ufl.inner(u, v) * ds(TOP)
+        newton = NewtonSolver(F, u, [bc], name="robin", rtol=1e-13)
+        if not robin_form:
+            dofs = nodes.global_dofs(V, bcs=[bc]).ravel()
+            assert np.sum(dofs < 0) == 2                     # the corner node on the left edge
+            newton.set_interface_stiffness(dofs, kappa * mass)
+        newton.solve()
+        assert newton.stats["factorizations"] == 1 and len(newton.history) <= 2, newton.history
+        solutions.append(owned(u).copy())
+    a, b = solutions
+    assert gnorm(a - b) <= 1e-11 * gnorm(b), gnorm(a - b) / gnorm(b)
+
+
+def test_cell_interface_stiffness_is_its_dirichlet_to_neumann_map():
+    """The cell's K on its whole boundary: K g = its own solve's nodal forces for the displacement g
+    (linear regime, strains 1e-12), K symmetric, and a rigid translation costs no force."""
+    msh, ft = meshes.block(1.0, 1.0, 6)
+    tags = tuple(int(t) for t in np.unique(np.hstack(COMM.allgather(np.unique(ft.values)))))
+    cell = NeoHookeanCellSolver(msh, ft, mu=1.0, lmbda=1.5, displacement_scale=1e-12,
+                                interfaces={"boundary": tags}, newton_rtol=1e-13)
+    K = cell.interface_stiffness("boundary")
+    _stretch(cell, 1.0)
+    cell.solve()
+    g = cell.interface_data("boundary")["displacement"]
+    force = cell.interface_data("boundary")["force"]
+    assert np.linalg.norm(K @ g.ravel() - force.ravel()) <= 1e-9 * np.linalg.norm(force)
+    assert np.abs(K - K.T).max() <= 1e-12 * np.abs(K).max()
+    for shift in ([1.0, 0.0], [0.0, 1.0]):
+        t = np.tile(shift, K.shape[0] // 2)
+        assert np.abs(K @ t).max() <= 1e-10 * np.abs(K).max()
