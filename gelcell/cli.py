@@ -38,7 +38,7 @@ from mpi4py import MPI  # noqa: E402
 for _key in _SINGLETON_MCA:
     del os.environ[_key]
 
-from gelcell.parameters import CASES, CaseParameters, ParameterError
+from gelcell.parameters import CASES, DEFAULT_GAMMA2, GAMMA2, CaseParameters, ParameterError
 
 __all__ = ["main", "build_parser", "add_case_arguments", "case_parameters_from_args"]
 
@@ -247,9 +247,11 @@ def _add_solver_arguments(p: argparse.ArgumentParser) -> None:
                         "runs, for comparison)")
     g.add_argument("--acceleration", choices=ACCELERATIONS, default=None,
                    help="coupling acceleration (default iqn-ils)")
-    g.add_argument("--gamma2", choices=("dirichlet", "robin"), default="dirichlet",
-                   help="the cell's condition on Gamma2: the gel's displacement (Dirichlet-Neumann, default) "
-                        "or the gel's force plus springs towards its displacement (Robin-Neumann)")
+    g.add_argument("--gamma2", choices=GAMMA2, default=DEFAULT_GAMMA2,
+                   help="the split on Gamma2: schur (default): the cell takes the gel's displacement and the gel "
+                        "carries the cell's interface stiffness (a Robin condition with the cell's Steklov-Poincare "
+                        "operator); dirichlet: plain Dirichlet-Neumann; robin: the cell takes the gel's force plus "
+                        "springs towards its displacement (Robin-Neumann)")
     g.add_argument("--monolithic", action="store_true",
                    help="solve the monolithic reference (all fields in one Newton system) instead")
     g.add_argument("--quiet", action="store_true", help="no per-iteration coupling progress")

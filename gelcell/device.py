@@ -20,6 +20,14 @@ receives a Dirichlet normal velocity.  On Gamma2 the cell takes the gel's
 displacement (Dirichlet) and returns its consistent nodal reaction; the gel
 takes the opposite nodal forces (Neumann) and v_f = 0.
 
+With ``gamma2="schur"`` the gel carries the cell's stiffness on Gamma2 (a
+Robin condition whose operator is the cell's Steklov-Poincare operator K at
+rest, ``NeoHookeanCellSolver.interface_stiffness``): the cell sends its
+force f and its interface displacement u_c (``Gamma2/cell_displacement``),
+and the gel's load there is f + K (u_c - u_s).  For a linear cell the gel then solves
+with the cell condensed into it, so Gamma2 needs no iterations of its own;
+at the fixed point u_s = u_c and the load is f again (docs/partitioning.md).
+
 Data (per fluid interface G in Gamma1, Gamma3, all on matching nodes):
 
     G/traction               fluid -> gel   T_F, the fluid's traction on the gel
@@ -82,7 +90,7 @@ from femtools.serialize import CanonicalOrder
 from femtools.timestepping import WindowClock
 from gelcell.boundaries import DeviceBoundaries, device_layout
 from gelcell.geometry import build_device
-from gelcell.parameters import CaseParameters
+from gelcell.parameters import DEFAULT_GAMMA2, GAMMA2, CaseParameters
 
 __all__ = ["Device", "FluidParticipant", "MovingFluidParticipant", "GelParticipant", "CellParticipant",
            "coupling_data", "default_robin_coefficient", "coupling_config", "gamma2_stiffness_ratio",
@@ -205,13 +213,15 @@ def coupling_data(boundaries: DeviceBoundaries, gamma2: str = "dirichlet", kinem
                  cp.Data(f"{g}/force", mesh=g, dim=2, writer="cell", readers=("gel",))]
         if gamma2 == "robin":
             data.append(cp.Data(f"{g}/gel_force", mesh=g, dim=2, writer="gel", readers=("cell",)))
+        elif gamma2 == "schur":
+            data.append(cp.Data(f"{g}/cell_displacement", mesh=g, dim=2, writer="cell", readers=("gel",)))
     return data
 
 
 def coupling_config(scheme: str = "serial", acceleration: str = "iqn-ils", *, limit: float = 1e-10,
                     max_iterations: int = 200, with_cell: bool = True,
                     overrides: typing.Mapping | None = None, transient: bool = False,
-                    params: CaseParameters | None = None, gamma2: str = "dirichlet") -> dict:
+                    params: CaseParameters | None = None, gamma2: str = DEFAULT_GAMMA2) -> dict:
     """A ``[coupling]`` table for a device run (TOML overrides are merged on top).
 
     Convergence: every exchanged data to a relative residual ``limit``.
@@ -406,7 +416,11 @@ class GelParticipant(cp.Participant):
             self.solver.set_interface_data(g, traction=inputs[f"{g}/traction"],
                                            velocity=inputs[f"{g}/velocity"])
         for g in self.cell_interfaces:
-            self.solver.set_interface_data(g, force=inputs[f"{g}/force"])
+            if self.gamma2 == "schur":
+                self.solver.set_interface_data(g, force=inputs[f"{g}/force"],
+                                               displacement=inputs[f"{g}/cell_displacement"])
+            else:
+                self.solver.set_interface_data(g, force=inputs[f"{g}/force"])
         self.solver.solve()
         out = {}
         for g in self.cell_interfaces:
@@ -469,7 +483,13 @@ class CellParticipant(cp.Participant):
                 self.solver.set_interface_data(g, displacement=inputs[f"{g}/displacement"])
         self.solver.solve()
         # the cell's reaction is the force ON the cell; the gel feels the opposite
-        return {f"{g}/force": -self.solver.interface_data(g)["force"] for g in self.interfaces}
+        out = {}
+        for g in self.interfaces:
+            data = self.solver.interface_data(g)
+            out[f"{g}/force"] = -data["force"]
+            if self.gamma2 == "schur":
+                out[f"{g}/cell_displacement"] = data["displacement"]
+        return out
 
 
 class Device:
@@ -489,7 +509,7 @@ class Device:
 
     def __init__(self, params: CaseParameters, comm: MPI.Comm = MPI.COMM_WORLD,
                  robin_coefficient: float | None = None, whole_mesh: bool = False,
-                 newton_rtol: float = 1e-12, gamma2: str = "dirichlet",
+                 newton_rtol: float = 1e-12, gamma2: str = DEFAULT_GAMMA2,
                  gamma2_coefficient: float | None = None, transient: bool = False,
                  time_scheme: str = "be", inflow: typing.Callable[[float], float] | None = None):
         t0 = time.perf_counter()
@@ -505,8 +525,8 @@ class Device:
         self.alpha_t = viscosity / ph.beta
         if not self.alpha_n > 0:
             raise ValueError(f"robin_coefficient = {self.alpha_n} must be > 0")
-        if gamma2 not in ("dirichlet", "robin"):
-            raise ValueError(f"gamma2 = {gamma2!r}: the cell's condition on Gamma2 must be 'dirichlet' or 'robin'")
+        if gamma2 not in GAMMA2:
+            raise ValueError(f"gamma2 = {gamma2!r}: the split on Gamma2 must be one of {', '.join(GAMMA2)}")
         self.gamma2 = gamma2
         self.kappa = default_gamma2_coefficient(params) if gamma2_coefficient is None else gamma2_coefficient
         # per cell: the stiffness seen from its own surface
@@ -551,10 +571,23 @@ class Device:
                              GelParticipant(self.gel, b.fluid_interfaces, b.cell_interfaces, gamma2,
                                             time_scheme)]
         if self.cell is not None:
+            if gamma2 == "schur":
+                self._condense_cell()
             self.participants.append(CellParticipant(self.cell, b.cell_interfaces, gamma2))
         self.data = coupling_data(b, gamma2, self.kinematics)
         self.scheme: cp.CouplingScheme | None = None
         self.result: cp.CouplingResult | None = None
+
+    def _condense_cell(self) -> None:
+        """Give the gel the cell's Steklov-Poincare operator on each Gamma2 (``gamma2="schur"``)."""
+        t0 = time.perf_counter()
+        for g in self.boundaries.cell_interfaces:
+            K = self.cell.interface_stiffness(g)
+            # the gel's node order (the data's "matching" mapping): P K P^T, P per component
+            P = cp.build_mapping("matching", self.cell.interface_points(g), self.gel.interface_points(g)).matrix
+            P2 = np.kron(P.toarray() if hasattr(P, "toarray") else P, np.eye(2))
+            self.gel.set_interface_stiffness(g, P2 @ K @ P2.T)
+        self.setup_time += time.perf_counter() - t0
 
     def _fits(self, states: typing.Mapping | None) -> bool:
         """Whether participant states (``save_state()`` per name) have this device's array shapes."""

@@ -55,6 +55,11 @@ ALL_CASES = CASES + ("file",)
 #: ``"finite"`` (default): total Lagrangian gel, moving fluid domain (docs/finite-strain.md);
 #: ``"small"``: the equations on the undeformed domain, exact to the size of the strains
 KINEMATICS = ("finite", "small")
+#: splits of Gamma2 (gelcell.device): the cell takes the gel's displacement ("dirichlet"), the same
+#: with the cell's stiffness condensed into the gel ("schur"), or the gel's force and springs ("robin")
+GAMMA2 = ("dirichlet", "schur", "robin")
+#: the default split: fewer iterations than "dirichlet" at every stiffness (docs/coupling.md)
+DEFAULT_GAMMA2 = "schur"
 
 #: Units in which results are reported (``to_report``) and their factor from SI.
 REPORT_UNITS = {"length": ("µm", 1e6), "displacement": ("µm", 1e6),

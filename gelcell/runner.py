@@ -24,7 +24,7 @@ from gelcell.device import Device, coupling_config, default_robin_coefficient, r
 from gelcell.geometry import build_device
 from gelcell.monolithic import MonolithicCoefficients, MonolithicSolver
 from gelcell.output import DerivedFields, write_fields, write_json_file, write_profiles
-from gelcell.parameters import CaseParameters, ParameterError
+from gelcell.parameters import DEFAULT_GAMMA2, CaseParameters, ParameterError
 from gelcell.plots import FigureWorker, FigureWorkerError, figure_data, figure_worker
 from gelcell.results import DeviceFields, fields_from_device, fields_from_monolithic, summarize
 from gelcell.validity import check_case, model_warnings
@@ -120,7 +120,7 @@ def monolithic_coefficients(params: CaseParameters) -> MonolithicCoefficients:
 
 def partitioned_config(params: CaseParameters, scheme: str = "serial", acceleration: str = "iqn-ils",
                        coupling: typing.Mapping | None = None, transient: bool = False,
-                       gamma2: str = "dirichlet") -> dict:
+                       gamma2: str = DEFAULT_GAMMA2) -> dict:
     """The ``[coupling]`` table of a partitioned run (defaults < the case's < ``coupling``), validated.
 
     Raises :class:`ParameterError` naming the bad key or value, before anything is meshed.
@@ -138,7 +138,7 @@ def partitioned_config(params: CaseParameters, scheme: str = "serial", accelerat
 def solve_partitioned(params: CaseParameters, scheme: str = "serial", acceleration: str = "iqn-ils",
                       coupling: typing.Mapping | None = None, comm: MPI.Comm = MPI.COMM_WORLD,
                       verbose: bool = True, robin_coefficient: float | None = None,
-                      checks: bool = True, gamma2: str = "dirichlet",
+                      checks: bool = True, gamma2: str = DEFAULT_GAMMA2,
                       reuse: "ReuseStore | None" = None) -> CaseRun:
     """Solve a case with the partitioned scheme; summary with coupling, timing and checks.
 
@@ -370,7 +370,7 @@ def run_case(params: CaseParameters, out: str | None, *, monolithic: bool = Fals
              acceleration: str = "iqn-ils", coupling: typing.Mapping | None = None,
              comm: MPI.Comm = MPI.COMM_WORLD, verbose: bool = True, figures: bool = True,
              fields: bool = True, overlay_profiles: dict | None = None, stream=None,
-             extra_json: dict | None = None, gamma2: str = "dirichlet", shown_path: str | None = None,
+             extra_json: dict | None = None, gamma2: str = DEFAULT_GAMMA2, shown_path: str | None = None,
              reuse: ReuseStore | None = None) -> dict:
     """Solve one case and write its outputs into ``out`` (whole or not at all).
 

@@ -32,7 +32,7 @@ import coupling as cp
 from femtools.io import atomic_directory, check_output_target
 from gelcell.device import Device, coupling_config, default_robin_coefficient
 from gelcell.output import write_json_file
-from gelcell.parameters import CaseParameters
+from gelcell.parameters import DEFAULT_GAMMA2, CaseParameters
 from gelcell.results import fields_from_device, flat_quantities, relative_differences, summarize
 from gelcell.runner import solve_monolithic
 
@@ -66,7 +66,7 @@ class Method:
     scheme: str
     acceleration: dict
     robin_factor: float = 1.0      # multiple of the device's default alpha_n
-    gamma2: str = "dirichlet"      # the cell's condition on Gamma2: "dirichlet" or "robin"
+    gamma2: str = DEFAULT_GAMMA2      # the split on Gamma2, one of gelcell.parameters.GAMMA2
 
     def config(self, with_cell: bool, max_iterations: int, params: CaseParameters | None = None) -> dict:
         """The ``[coupling]`` table: the device default of the case (with ``params``: its Gamma2

@@ -38,7 +38,7 @@ from mpi4py import MPI
 from femtools.io import atomic_directory
 from gelcell.errors import SweepError, exit_code, message
 from gelcell.output import write_json_file
-from gelcell.parameters import CaseParameters, ParameterError
+from gelcell.parameters import DEFAULT_GAMMA2, CaseParameters, ParameterError
 from gelcell.runner import ReuseStore, run_case
 
 __all__ = ["run_sweep", "run_name", "check_distinct", "SWEEP_QUANTITIES"]
@@ -104,7 +104,7 @@ def check_distinct(param: str, values: list[float]) -> None:
 
 def run_sweep(cases: list[CaseParameters], param: str, values: list[float], out: str, *,
               monolithic: bool = False, scheme: str = "serial", acceleration: str = "iqn-ils",
-              verbose: bool = False, comm: MPI.Comm = MPI.COMM_WORLD, gamma2: str = "dirichlet",
+              verbose: bool = False, comm: MPI.Comm = MPI.COMM_WORLD, gamma2: str = DEFAULT_GAMMA2,
               debug: bool = False, compare_kinematics: bool = False) -> list[dict]:
     """Run every case; write sweep.csv/json, sweep.png and runs/<param>=<value>/summary.json.
 

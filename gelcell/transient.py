@@ -44,7 +44,7 @@ from femtools.transfer import NodalTransfer
 from gelcell.device import Device
 from gelcell.geometry import build_device
 from gelcell.monolithic import MonolithicSolver
-from gelcell.parameters import CaseParameters, ParameterError
+from gelcell.parameters import DEFAULT_GAMMA2, CaseParameters, ParameterError
 from gelcell.results import DeviceFields, DeviceQuantities, fields_from_device
 from gelcell.timesettings import TimeSettings
 
@@ -600,7 +600,7 @@ def _fmt(value) -> str:
 def run_transient_case(params: CaseParameters, settings: TimeSettings, out: str | None, *,
                        monolithic: bool = False, scheme: str = "serial", acceleration: str = "iqn-ils",
                        coupling: typing.Mapping | None = None, comm: MPI.Comm = MPI.COMM_WORLD,
-                       figures: bool = True, fields: bool = True, gamma2: str = "dirichlet",
+                       figures: bool = True, fields: bool = True, gamma2: str = DEFAULT_GAMMA2,
                        resume: bool = False, stream=None) -> dict:
     """Run a case in time from rest (or resume it) and write its outputs into ``out``.
 

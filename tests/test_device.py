@@ -152,11 +152,13 @@ def test_each_participant_alone_reproduces_its_part(case):
 
 
 @pytest.mark.parametrize("case", ["shear", "normal"])
-def test_robin_neumann_on_gamma2_reaches_the_same_solution(case):
-    """The Robin-Neumann split on Gamma2 is another iteration for the same discrete problem."""
+@pytest.mark.parametrize("gamma2", ["robin", "dirichlet"])
+def test_other_gamma2_splits_reach_the_same_solution(case, gamma2):
+    """Robin-Neumann and plain Dirichlet-Neumann on Gamma2 (the default condenses the cell's
+    stiffness into the gel) are other iterations for the same discrete problem."""
     p = _params(case)
-    robin = solve_partitioned(p, "serial", "iqn-ils", verbose=False, checks=False, gamma2="robin")
+    part = solve_partitioned(p, "serial", "iqn-ils", verbose=False, checks=False, gamma2=gamma2)
     mono = solve_monolithic(p, checks=False)
-    assert robin.summary["coupling"]["converged"] and robin.summary["coupling"]["gamma2"] == "robin"
-    diffs = relative_differences(robin.fields, mono.fields)
+    assert part.summary["coupling"]["converged"] and part.summary["coupling"]["gamma2"] == gamma2
+    diffs = relative_differences(part.fields, mono.fields)
     assert max(diffs.values()) <= 1e-6, diffs

@@ -249,7 +249,7 @@ def test_resume_refuses_another_case_and_missing_checkpoints(tmp_path, cli_stder
     from gelcell.timesettings import TimeSettings
     from gelcell.transient import run_record
     record = run_record(case("shear"), TimeSettings(transient=True, t_end=1e-6),
-                        {"monolithic": False, "scheme": "serial", "acceleration": "iqn-ils", "gamma2": "dirichlet",
+                        {"monolithic": False, "scheme": "serial", "acceleration": "iqn-ils", "gamma2": "schur",
                          "coupling": {}})
     (partial / "run.json").write_text(json.dumps(record, default=str))
     (partial / "checkpoint.npz").write_bytes(b"")
