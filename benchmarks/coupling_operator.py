@@ -24,7 +24,13 @@ residual of 1e-10 on every accelerated data:
   operator-valued Robin or interface Schur-complement preconditioner per
   interface could at best provide; the fluid-gel interfaces Gamma1 and Gamma3
   as one block, or only Gamma2's), the Gamma2 prior where no block is exact;
-  ``exact`` is the whole inverse Jacobian (2-3 iterations: the check).
+  ``exact`` is the whole inverse Jacobian (2-3 iterations: the check);
+* ``condensed``: IQN-ILS on the map with one interface's block eliminated
+  exactly, x1 -> A11 x1 + A12 (I - A22)^-1 A21 x1: the Gamma2 block (the
+  cell's stiffness carried by the gel, ``gamma2="schur"``, the default split)
+  or the fluid-gel block (the fluid's, a model: not built).
+
+The operator is that of the Dirichlet-Neumann split on Gamma2 (``gamma2="dirichlet"``).
 
 Then a second solve reuses the first one's secant columns (as a Ca sweep does,
 ``time_windows_reused``), from the first solution, for a fixed point moved by
@@ -49,6 +55,7 @@ from mpi4py import MPI
 
 from coupling.acceleration import build_acceleration, relaxation_prior_diagonal
 from coupling.config import load_config
+from coupling.layout import VectorLayout
 from coupling.mapping import build_mapping, order_along_curve
 from gelcell.device import Device, coupling_config, default_relaxation_prior
 from gelcell.parameters import CaseParameters
@@ -61,8 +68,9 @@ NODAL = ("normal_flux", "force")          # consistent nodal loads: mapped throu
 
 def extract(params: CaseParameters):
     """(A, xs, layout, points per data) of the converged steady map."""
-    device = Device(params, MPI.COMM_WORLD)
-    device.solve(coupling_config(with_cell=params.with_cell), verbose=False)
+    # the Dirichlet-Neumann split: the map whose Gamma2 block the default split condenses
+    device = Device(params, MPI.COMM_WORLD, gamma2="dirichlet")
+    device.solve(coupling_config(with_cell=params.with_cell, gamma2="dirichlet"), verbose=False)
     scheme = device.scheme
     layout = scheme.layout
     xs = layout.concat(scheme.values)
@@ -163,6 +171,30 @@ def exact_blocks(a, layout, groups, elsewhere):
     return j
 
 
+def condensed_rows(a, xs, layout, prior):
+    """Iterations on the map with one interface's block eliminated exactly (that field condensed
+    into the gel, as ``gamma2="schur"`` does with the cell): IQN-ILS on the other interfaces' data."""
+    n = layout.size
+    slices = dict(zip(layout.names, layout.slices()))
+    groups = {"Gamma2": lambda name: name.startswith("Gamma2/")}
+    groups["fluid-gel"] = lambda name: not name.startswith("Gamma2/")
+    rows = {}
+    for label, (kept, gone) in {"Gamma2 condensed (the cell in the gel: the default split)": ("fluid-gel", "Gamma2"),
+                                "fluid-gel condensed (the fluid in the gel)": ("Gamma2", "fluid-gel")}.items():
+        names = [name for name in layout.names if groups[kept](name)]
+        if len(names) == len(layout.names):
+            continue
+        i = np.hstack([np.arange(n)[slices[name]] for name in names])
+        j = np.setdiff1d(np.arange(n), i)
+        reduced = a[np.ix_(i, i)] + a[np.ix_(i, j)] @ np.linalg.solve(np.eye(j.size) - a[np.ix_(j, j)], a[np.ix_(j, i)])
+        sub = VectorLayout(names, [layout.shapes[layout.names.index(name)] for name in names])
+        rows[label] = iterate(reduced, xs[i], sub)[0]
+        if kept == "Gamma2":
+            rows[label + ", Gamma2 prior"] = iterate(reduced, xs[i], sub, prior=np.diag(
+                relaxation_prior_diagonal(prior, sub)))[0]
+    return rows
+
+
 def reuse_rows(a, xs, layout, prior, shift=1e-5):
     """Iterations of a second solve from the first solution with the first solve's columns kept,
     for the fixed point moved by a relative ``shift`` along xs and in a random direction."""
@@ -235,6 +267,7 @@ def main() -> None:
             a, layout, [fluid_gel, {"Gamma2"}], gamma2))[0],
         "exact": iterate(a, xs, layout, prior=a @ np.linalg.inv(a - np.eye(n)))[0],
     })
+    rows.update(condensed_rows(a, xs, layout, prior))
     rows.update(reuse_rows(a, xs, layout, prior))
     for name, its in rows.items():
         print(f"  {name:72s} {its if its is not None else '>300'}")

@@ -225,9 +225,10 @@ def coupling_config(scheme: str = "serial", acceleration: str = "iqn-ils", *, li
     """A ``[coupling]`` table for a device run (TOML overrides are merged on top).
 
     Convergence: every exchanged data to a relative residual ``limit``.
-    Steady serial runs with IQN, the case's ``params`` and the default
-    Dirichlet-Neumann ``gamma2``: the Gamma2 relaxation prior
-    (:func:`default_relaxation_prior`; it is derived for that split), and the secant columns of the
+    Steady serial runs with IQN: with the case's ``params`` and the plain
+    Dirichlet-Neumann ``gamma2="dirichlet"`` the Gamma2 relaxation prior
+    (:func:`default_relaxation_prior`; it is derived for that split; the default
+    ``"schur"`` has no Gamma2 amplification to relax), and the secant columns of the
     last 4 solves are kept (``time_windows_reused``; no effect on one solve,
     reused by a Ca sweep, see ``Device.solve(reuse=...)``).
     Time-dependent runs (``transient``): each window starts from the quadratic
@@ -440,7 +441,9 @@ class GelParticipant(cp.Participant):
 class CellParticipant(cp.Participant):
     """The cell solver seen by the coupling; returns the force on the gel.
 
-    Dirichlet-Neumann (default): the cell takes the gel's displacement.
+    Dirichlet-Neumann: the cell takes the gel's displacement; with
+    ``gamma2="schur"`` (the default) it also sends its own interface
+    displacement, which with its force makes the gel's Robin condition.
     Robin-Neumann: the cell takes the gel's force on it plus springs kappa
     towards the gel's displacement, f = f_gel + kappa M (u_s - u_c); at
     convergence u_c = u_s and the forces balance.  Quasi-static in time; its

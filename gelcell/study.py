@@ -101,6 +101,7 @@ def study_methods(quick: bool = False) -> list[Method]:
            "filter": {"type": "qr2", "limit": 1e-3}}
     if quick:
         return [Method("none", "serial", {"type": "none"}),
+                Method("none dirichlet gamma2", "serial", {"type": "none"}, gamma2="dirichlet"),
                 Method("aitken", "serial", {"type": "aitken", "initial_relaxation": 0.5}),
                 Method("iqn-ils", "serial", iqn),
                 Method("iqn-ils", "parallel", iqn)]
@@ -116,19 +117,23 @@ def study_methods(quick: bool = False) -> list[Method]:
                       "filter": {"type": "qr2", "limit": 1e-3}}),
     ]
     methods = [Method(name, scheme, acc) for scheme in ("serial", "parallel") for name, acc in accelerations]
-    # Robin-Neumann on Gamma2 (the cell takes the gel's force and springs towards its displacement)
-    methods += [Method("iqn-ils robin gamma2", "serial", iqn, gamma2="robin"),
-                Method("aitken robin gamma2", "serial", {"type": "aitken", "initial_relaxation": 0.5},
-                       gamma2="robin")]
-    # the Gamma2 relaxation prior of the default (omega = 1/(1 + rho), docs/coupling.md): without it
-    methods.append(Method("iqn-ils no prior", "serial", {**iqn, "relaxation_prior": {}}))
+    # the other splits of Gamma2 (docs/partitioning.md): plain Dirichlet-Neumann (with IQN-ILS: the
+    # relaxation prior omega = 1/(1 + rho), the default before the cell was condensed into the gel,
+    # and without it, the default before that) and Robin-Neumann (springs on the cell)
+    aitken = {"type": "aitken", "initial_relaxation": 0.5}
+    methods += [Method("none dirichlet gamma2", "serial", {"type": "none"}, gamma2="dirichlet"),
+                Method("aitken dirichlet gamma2", "serial", aitken, gamma2="dirichlet"),
+                Method("iqn-ils dirichlet gamma2", "serial", iqn, gamma2="dirichlet"),
+                Method("iqn-ils dirichlet gamma2 no prior", "serial", {**iqn, "relaxation_prior": {}},
+                       gamma2="dirichlet"),
+                Method("iqn-ils robin gamma2", "serial", iqn, gamma2="robin"),
+                Method("aitken robin gamma2", "serial", aitken, gamma2="robin")]
     # the preconditioner: residual-sum weights drift every iteration (the default is value scaling)
     methods.append(Method("iqn-ils residual-sum", "serial", {**iqn, "preconditioner": {"type": "residual-sum"}}))
     # the partitioning variant: the Robin coefficient of the fluid's mass condition on Gamma1/Gamma3
     for factor in (0.1, 10.0):
         methods += [Method(f"iqn-ils alpha x{factor:g}", "serial", iqn, factor),
-                    Method(f"aitken alpha x{factor:g}", "serial", {"type": "aitken", "initial_relaxation": 0.5},
-                           factor)]
+                    Method(f"aitken alpha x{factor:g}", "serial", aitken, factor)]
     return methods
 
 

@@ -74,7 +74,7 @@ def test_debug_adds_the_traceback(tmp_path):
 # ------------------------------------------------------------------ while solving
 @serial_cli
 @pytest.mark.parametrize("args, code, words", [
-    (["--config", "{diverging}", "--acceleration", "none"], 5,
+    (["--config", "{diverging}", "--acceleration", "none", "--gamma2", "dirichlet"], 5,
      ["coupling diverged", "Gamma2/force", "--acceleration iqn-ils"]),
     (["--config", "{few}"], 6, ["did not converge in 3 iterations", "raise max_iterations"]),
     (["--ca", "1e-3"], 8, ["gel: Newton's method failed", "lower Ca"]),
