@@ -618,31 +618,29 @@ class NewtonSolver:
         seq = PETSc.Vec().createSeq(dofs.size, comm=MPI.COMM_SELF)
         scatter = PETSc.Scatter().create(self.u.vector, PETSc.IS().createGeneral(dofs.astype(PETSc.IntType),
                                                                                   comm=MPI.COMM_SELF), seq, None)
-        rows = dofs[mine].astype(PETSc.IntType)
-        # K alone, as a matrix of A's layout: added to A's first assembly with A's pattern extended
+        # K alone, as a matrix of A's layout, added to every assembly of A
         nnz = np.zeros(end - start, dtype=PETSc.IntType)
         nnz[dofs[mine] - start] = dofs.size
         alone = PETSc.Mat().createAIJ(self.A.getSizes(), nnz=(nnz, nnz), comm=self.A.getComm())
-        alone.setValues(rows, dofs.astype(PETSc.IntType), K[mine], addv=PETSc.InsertMode.ADD_VALUES)
+        alone.setValues(dofs[mine].astype(PETSc.IntType), dofs.astype(PETSc.IntType), K[mine],
+                        addv=PETSc.InsertMode.ADD_VALUES)
         alone.assemble()
-        self._stiffness = dict(dofs=dofs.astype(PETSc.IntType), rows=rows, K_rows=K[mine],
-                               local_rows=(dofs[mine] - start).astype(np.int32), seq=seq, scatter=scatter,
-                               matrix=alone, in_pattern=False)
+        self._stiffness = dict(K_rows=K[mine], local_rows=(dofs[mine] - start).astype(np.int32), seq=seq,
+                               scatter=scatter, matrix=alone,
+                               structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
         self.invalidate_jacobian()
 
     def _assemble_matrix(self, A: PETSc.Mat, form) -> None:
         """Assemble ``form`` into ``A`` (Dirichlet rows: identity), plus the interface stiffness."""
         A.zeroEntries()
-        st = self._stiffness
-        if st is not None and st["in_pattern"] and st["rows"].size:
-            A.setValues(st["rows"], st["dofs"], st["K_rows"], addv=PETSc.InsertMode.ADD_VALUES)
         fem_petsc.assemble_matrix(A, form, bcs=self.bcs)
         A.assemble()
-        if st is not None and not st["in_pattern"]:
-            # once: the union of the two patterns (setting K's entries into A would reallocate
-            # A's storage once per row that overflows); A keeps it for later assemblies
-            A.axpy(1.0, st["matrix"], structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
-            st["in_pattern"] = True
+        st = self._stiffness
+        if st is not None:
+            # the first sum extends A's pattern by K's (setting K's entries into dolfinx's matrix
+            # would reallocate its storage once per overflowing row); A keeps that pattern
+            A.axpy(1.0, st["matrix"], structure=st["structure"])
+            st["structure"] = PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN
 
     def _stiffness_force(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(owned local rows, K u_I at them), or None without an interface stiffness."""

@@ -417,11 +417,9 @@ class GelParticipant(cp.Participant):
             self.solver.set_interface_data(g, traction=inputs[f"{g}/traction"],
                                            velocity=inputs[f"{g}/velocity"])
         for g in self.cell_interfaces:
-            if self.gamma2 == "schur":
-                self.solver.set_interface_data(g, force=inputs[f"{g}/force"],
-                                               displacement=inputs[f"{g}/cell_displacement"])
-            else:
-                self.solver.set_interface_data(g, force=inputs[f"{g}/force"])
+            # "schur": the cell's own displacement completes the gel's Robin condition
+            held = {"displacement": inputs[f"{g}/cell_displacement"]} if self.gamma2 == "schur" else {}
+            self.solver.set_interface_data(g, force=inputs[f"{g}/force"], **held)
         self.solver.solve()
         out = {}
         for g in self.cell_interfaces:
@@ -588,7 +586,7 @@ class Device:
             K = self.cell.interface_stiffness(g)
             # the gel's node order (the data's "matching" mapping): P K P^T, P per component
             P = cp.build_mapping("matching", self.cell.interface_points(g), self.gel.interface_points(g)).matrix
-            P2 = np.kron(P.toarray() if hasattr(P, "toarray") else P, np.eye(2))
+            P2 = np.kron(P.toarray(), np.eye(2))
             self.gel.set_interface_stiffness(g, P2 @ K @ P2.T)
         self.setup_time += time.perf_counter() - t0
 
