@@ -39,6 +39,15 @@ _ICNTL = re.compile(r"^mat_mumps_icntl_(\d+)$")
 #: reads to refuse a singular system (none of the device systems has a null pivot).
 DEFAULT_ICNTL = {14: 100, 24: 1}
 
+#: MUMPS's fill-reducing orderings (ICNTL(7)) in Debian's build, which has neither METIS nor SCOTCH
+MUMPS_ORDERINGS = {0: "AMD", 2: "AMF", 4: "PORD", 6: "QAMD", 7: "automatic"}
+
+#: AMF.  MUMPS's automatic choice takes PORD for some of the device's matrices,
+#: whose analysis calls clock() (a system call) at every elimination stage:
+#: 1.7-2x AMF's analysis time for factors within 7 % of AMF's (measured on the
+#: device's matrices at mesh size 1 and 0.5, README "Performance")
+DEFAULT_ORDERING = 2
+
 
 class SolverStats(dict):
     """Counts and wall times of a solver: factorisations, solves, assemblies."""
@@ -73,9 +82,9 @@ class DirectSolver:
     ``mat_mumps_icntl_N`` entries of ``options`` become MUMPS controls,
     ``pc_factor_mat_solver_type`` selects the factorisation package, and any
     other entry goes to the options database under a unique prefix.
-    ICNTL(7), the ordering, is refused: PETSc 3.18 resets it before the
-    analysis when it is set this way, and MUMPS's own choice (PORD; Debian's
-    MUMPS has neither METIS nor SCOTCH) leaves the least fill of those it has.
+    ICNTL(7), the ordering (``mat_mumps_icntl_7``, default :data:`DEFAULT_ORDERING`),
+    is passed through the options database for the analysis only and removed
+    after it: PETSc 3.18 resets an ICNTL(7) set through the API before the analysis.
     """
 
     def __init__(self, comm: MPI.Comm, name: str, options: dict | None = None, kind: str = "lu"):
@@ -90,14 +99,15 @@ class DirectSolver:
         options.pop("ksp_type", None)
         options.pop("pc_type", None)
         self.icntl = dict(DEFAULT_ICNTL)
+        self.ordering = int(options.pop("mat_mumps_icntl_7", DEFAULT_ORDERING))
+        if self.ordering not in MUMPS_ORDERINGS:
+            raise ValueError(f"{name}: mat_mumps_icntl_7 (the ordering) must be one of {sorted(MUMPS_ORDERINGS)}, "
+                             f"got {self.ordering}")
         if comm.size > 1:
             self.icntl[20] = 10         # distributed right-hand side: no gather onto the host before each solve
         for key in list(options):
             m = _ICNTL.match(key)
             if m:
-                if int(m.group(1)) == 7:
-                    raise ValueError(f"{name}: mat_mumps_icntl_7 (the ordering) cannot be set: PETSc resets it "
-                                     "before the analysis; MUMPS chooses it (see DirectSolver)")
                 self.icntl[int(m.group(1))] = int(options.pop(key))
         self._prefixed = bool(options)
         if options:
@@ -173,7 +183,17 @@ class DirectSolver:
             F = pc.getFactorMatrix()
             for k, v in self.icntl.items():
                 F.setMumpsIcntl(k, v)
-        self.ksp.setUp()
+        if mumps:
+            # read by the analysis, under the operator's prefix; removed again, so that no other solver sees it
+            ordering = (self.ksp.getOperators()[0].getOptionsPrefix() or "") + "mat_mumps_icntl_7"
+            options = PETSc.Options()
+            options[ordering] = self.ordering
+            try:
+                self.ksp.setUp()
+            finally:
+                options.delValue(ordering)
+        else:
+            self.ksp.setUp()
         if mumps:
             # INFOG is global: every rank sees the same values and raises alike
             F = pc.getFactorMatrix()

@@ -229,10 +229,7 @@ def test_interface_mass_is_the_restricted_mass_matrix():
 
 
 # -- MUMPS controls ----------------------------------------------------------------------------
-def test_direct_solver_keeps_its_mumps_controls_and_refuses_the_ordering():
-    """ICNTL(14) and (24) reach MUMPS (read back after the factorisation); ICNTL(7) is refused with
-    a message that names it, because PETSc would reset it before the analysis."""
-    n = 200
+def _tridiagonal(n: int) -> PETSc.Mat:
     A = PETSc.Mat().createAIJ([n, n], nnz=3, comm=COMM)
     start, end = A.getOwnershipRange()
     for i in range(start, end):
@@ -241,11 +238,30 @@ def test_direct_solver_keeps_its_mumps_controls_and_refuses_the_ordering():
             if 0 <= j < n:
                 A.setValue(i, j, -1.0)
     A.assemble()
+    return A
+
+
+def test_direct_solver_keeps_its_mumps_controls():
+    """ICNTL(14) and (24) reach MUMPS (read back after the factorisation)."""
     solver = DirectSolver(COMM, "controls", {"mat_mumps_icntl_14": 77})
-    solver.set_operator(A)
+    solver.set_operator(_tridiagonal(200))
     solver.factorize()
     F = solver.ksp.getPC().getFactorMatrix()
     assert F.getMumpsIcntl(14) == 77 and F.getMumpsIcntl(24) == 1
+
+
+@pytest.mark.parametrize("options, used", [({}, 2), ({"mat_mumps_icntl_7": 4}, 4), ({"mat_mumps_icntl_7": 0}, 0),
+                                           ({"mat_mumps_icntl_7": 6, "pc_factor_shift_type": "none"}, 6)])
+def test_direct_solver_orders_by_the_ordering_asked_for(options, used):
+    """The ordering (ICNTL(7), default AMF) reaches MUMPS's analysis, also for a solver whose other
+    options go to the options database under a prefix (the last case), and is not left in that
+    database; INFOG(7) is the ordering MUMPS used.  An ordering Debian's MUMPS lacks (METIS, 5) is
+    refused with a message that names the control."""
+    solver = DirectSolver(COMM, "ordering", dict(options))
+    solver.set_operator(_tridiagonal(200))
+    solver.factorize()
+    assert solver.ksp.getPC().getFactorMatrix().getMumpsInfog(7) == used
+    assert not any(key.endswith("mat_mumps_icntl_7") for key in PETSc.Options().getAll())
     with pytest.raises(ValueError, match="mat_mumps_icntl_7"):
         DirectSolver(COMM, "ordering", {"mat_mumps_icntl_7": 5})
 
