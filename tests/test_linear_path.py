@@ -280,7 +280,8 @@ def _aij(dense: np.ndarray) -> PETSc.Mat:
 
 def test_symmetry_is_judged_entrywise_relative_to_the_largest_row_sum():
     """``is_symmetric``: asymmetries of round-off size (1e-15 of an entry) pass, one of 1e-9 of the
-    largest row sum does not, nor does an entry without its transposed partner (on 1 and 2 ranks)."""
+    largest row sum does not (within a rank's rows and between two ranks' rows), nor does an entry
+    without its transposed partner (on 1 and 2 ranks)."""
     n = 40
     dense = 4.0 * np.eye(n) - np.eye(n, k=1) - np.eye(n, k=-1) + 0.5 * (np.eye(n, k=7) + np.eye(n, k=-7))
     row_sum = np.abs(dense).sum(axis=1).max()
@@ -288,9 +289,12 @@ def test_symmetry_is_judged_entrywise_relative_to_the_largest_row_sum():
     rounded[3, 10] *= 1.0 + 1e-15
     skewed = dense.copy()
     skewed[3, 10] += 1e-9 * row_sum
+    across = dense.copy()                   # on 2 ranks row 15 and column 22 have different owners
+    across[15, 22] += 1e-9 * row_sum
     one_sided = dense.copy()
     one_sided[0, n - 1] = 1e-3
-    for matrix, expected in ((dense, True), (rounded, True), (skewed, False), (one_sided, False)):
+    for matrix, expected in ((dense, True), (rounded, True), (skewed, False), (across, False),
+                             (one_sided, False)):
         assert is_symmetric(_aij(matrix)) is expected
 
 
