@@ -43,7 +43,7 @@ from dolfinx.fem import petsc as fem_petsc
 from cell import forms
 from femtools.functions import quadrature_measure, von_mises
 from femtools.interface import InterfaceNodes
-from femtools.linalg import NewtonSolver, assemble_residual_vector, gather_csr, jacobian_at_rest
+from femtools.linalg import NewtonSolver, assemble_residual_vector, gather_csr, jacobian_at_rest, schur_complement
 from femtools.solver import FieldSolver
 
 __all__ = ["NeoHookeanCellSolver"]
@@ -386,20 +386,15 @@ class NeoHookeanCellSolver(FieldSolver):
         if name not in self._interface_bcs:
             raise KeyError(f"{self.name}: {name!r} is not a Dirichlet interface; they are "
                            f"{sorted(self._interface_bcs)}")
-        import scipy.sparse.linalg
         others = [bc for bc in self.bcs if bc is not self._interface_bcs[name]]
         A = fem_petsc.assemble_matrix(self._newton.J_reference, bcs=others)
         A.assemble()
-        K = gather_csr(A).tocsc()
+        K = gather_csr(A)
         A.destroy()
         dofs = self.interface_nodes(name).global_dofs(self.V, bcs=others).ravel()
         on = dofs >= 0
-        gamma = dofs[on]
-        inner = np.setdiff1d(np.arange(K.shape[0]), gamma)
-        K_gi = K[gamma][:, inner]
-        coupled = scipy.sparse.linalg.splu(K[inner][:, inner]).solve(K_gi.T.toarray())
         out = np.zeros((dofs.size, dofs.size))
-        out[np.ix_(on, on)] = K[gamma][:, gamma].toarray() - K_gi @ coupled
+        out[np.ix_(on, on)] = schur_complement(K, dofs[on])
         return 0.5 * (out + out.T)
 
     # -- load updates (tests, load stepping) ------------------------------------

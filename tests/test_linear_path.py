@@ -31,7 +31,7 @@ from cell import NeoHookeanCellSolver
 from cell import meshes
 from femtools.functions import quadrature_measure
 from femtools.interface import InterfaceMass, InterfaceNodes
-from femtools.linalg import BlockTriangularSolver, DirectSolver, NewtonSolver, is_symmetric
+from femtools.linalg import BlockTriangularSolver, DirectSolver, NewtonSolver, is_symmetric, schur_complement
 from gel import GelParameters, PoroelasticGelSolver
 from gel.testing import BOTTOM, LEFT, RIGHT, TOP, rectangle
 
@@ -264,6 +264,23 @@ def test_direct_solver_orders_by_the_ordering_asked_for(options, used):
     assert not any(key.endswith("mat_mumps_icntl_7") for key in PETSc.Options().getAll())
     with pytest.raises(ValueError, match="mat_mumps_icntl_7"):
         DirectSolver(COMM, "ordering", {"mat_mumps_icntl_7": 5})
+
+
+def test_schur_complement_is_the_condensed_matrix():
+    """``schur_complement``: K_kk - K_kr K_rr^-1 K_rk of a sparse non-symmetric matrix, against
+    numpy's dense formula (1e-12), for kept indices in any order; none kept gives an empty matrix."""
+    import scipy.sparse
+    n = 120
+    rng = np.random.default_rng(3)
+    K = scipy.sparse.random(n, n, density=0.05, random_state=rng) + scipy.sparse.diags(np.full(n, 4.0))
+    keep = np.array([7, 3, 90, 41, 119, 0])
+    rest = np.setdiff1d(np.arange(n), keep)
+    D = K.toarray()
+    expected = D[np.ix_(keep, keep)] - D[np.ix_(keep, rest)] @ np.linalg.solve(D[np.ix_(rest, rest)],
+                                                                                D[np.ix_(rest, keep)])
+    S = schur_complement(K, keep)
+    assert np.abs(S - expected).max() <= 1e-12 * np.abs(expected).max()
+    assert schur_complement(K, np.empty(0, dtype=int)).shape == (0, 0)
 
 
 def _aij(dense: np.ndarray) -> PETSc.Mat:
