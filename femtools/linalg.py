@@ -509,7 +509,10 @@ class NewtonSolver:
     it, so at the loop's fixed point the step is zero and the state solves
     ``F = 0`` exactly.  Above it, or when the state was set otherwise (a first
     solve, a restored state, new Constants), the solve is the exact Newton path
-    to ``rtol``.
+    to ``rtol``.  ``data_coefficients``: coefficients of ``F`` that may change
+    between the solves of such a loop like its data (e.g. the mesh position of
+    a domain that follows its interfaces): at the loop's fixed point they stop
+    changing too, so the same argument holds.
     """
 
     def __init__(self, F: ufl.Form, u: fem.Function, bcs: list, J: ufl.Form | None = None,
@@ -518,7 +521,8 @@ class NewtonSolver:
                  petsc_options: dict | None = None, form_compiler_params: dict | None = None,
                  active_dofs: np.ndarray | None = None, J_reference: ufl.Form | None = None,
                  F_data: ufl.Form | None = None, linear_tolerance: float = 1e-3,
-                 reference_blocks: typing.Sequence[np.ndarray] | None = None):
+                 reference_blocks: typing.Sequence[np.ndarray] | None = None,
+                 data_coefficients: typing.Sequence[fem.Function] = ()):
         if reuse not in ("never", "adaptive"):
             raise ValueError(f"reuse must be 'never' or 'adaptive', got {reuse!r}")
         if not (0.0 < linear_tolerance < 1.0):
@@ -535,6 +539,11 @@ class NewtonSolver:
         self.last_linear_ratio: float | None = None
         # what the state part depends on: its coefficients' values and its Constants
         self._state_sources = (list(F.coefficients()), list(F.constants()))
+        # what the linear path asks to be unchanged: the same but for the data coefficients
+        data = {id(c) for c in data_coefficients}
+        if not data <= {id(c) for c in self._state_sources[0]}:
+            raise ValueError(f"{name}: data_coefficients must be coefficients of F")
+        self._path_sources = ([c for c in self._state_sources[0] if id(c) not in data], self._state_sources[1])
         # (key, F(u)) at the state the last solve started from and at the latest other state
         self._state_residuals: dict[str, tuple[list[np.ndarray], PETSc.Vec] | None] = {"start": None,
                                                                                        "latest": None}
@@ -688,8 +697,8 @@ class NewtonSolver:
                               mode=PETSc.ScatterMode.FORWARD)
         return st["local_rows"], st["K_rows"] @ st["seq"].array_r
 
-    def _current_state_key(self) -> list[np.ndarray]:
-        functions, constants = self._state_sources
+    def _current_state_key(self, sources=None) -> list[np.ndarray]:
+        functions, constants = sources or self._state_sources
         return [f.x.array for f in functions] + [np.asarray(c.value) for c in constants]
 
     def _same_key(self, key: list[np.ndarray], other: list[np.ndarray] | None) -> bool:
@@ -767,8 +776,9 @@ class NewtonSolver:
         step with the kept Jacobian when the nonlinear remainder is small
         enough (see the class docstring); otherwise the exact path.
         """
-        iterations = self._iterate(linear_path and self._same_key(self._current_state_key(), self._solution_key))
-        self._solution_key = [a.copy() for a in self._current_state_key()]
+        key = self._current_state_key(self._path_sources)
+        iterations = self._iterate(linear_path and self._same_key(key, self._solution_key))
+        self._solution_key = [a.copy() for a in self._current_state_key(self._path_sources)]
         return iterations
 
     def _iterate(self, linear_path: bool) -> int:

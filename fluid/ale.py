@@ -94,11 +94,11 @@ def ale_robin_residual(V, v, u_m, d, N, alpha_n, alpha_t, g_normal, g_tangential
 class _NewtonAsLinear:
     """A NewtonSolver behind the ``solve``/``update_operator``/``stats`` of a LinearSolver."""
 
-    def __init__(self, newton: NewtonSolver):
-        self.newton = newton
+    def __init__(self, newton: NewtonSolver, linear_path: bool = False):
+        self.newton, self.linear_path = newton, linear_path
 
     def solve(self):
-        return self.newton.solve()
+        return self.newton.solve(linear_path=self.linear_path)
 
     def update_operator(self) -> None:
         self.newton.invalidate_jacobian()
@@ -119,6 +119,13 @@ class MovingStokesSolver(StokesSolver):
             displacement is prescribed (``set_boundary_displacement``), e.g.
             the walls of a test channel; every interface is a moving boundary.
         newton_rtol: relative tolerance of the (V, P) correction.
+        linear_path: each ``solve()`` that continues from the previous
+            solution takes one step with the kept linearisation at rest, the
+            mesh position and interface data being data of the step
+            (``femtools.linalg.NewtonSolver``, ``data_coefficients``); for a
+            coupling loop whose solves continue from each other (a steady
+            partitioned run) the remainder converges with the coupling.
+            Default: the exact path.
 
     Mesh motion (``femtools.meshmotion.MeshMotion``): data on the interfaces
     and ``mesh_boundaries``, sliding on the ``component_bcs`` boundaries
@@ -128,12 +135,13 @@ class MovingStokesSolver(StokesSolver):
 
     def __init__(self, mesh, facet_tags, *, displacement_scale: float = 1.0,
                  mesh_boundaries: typing.Mapping[str, typing.Any] | None = None,
-                 newton_rtol: float = 1e-12, **kwargs):
+                 newton_rtol: float = 1e-12, linear_path: bool = False, **kwargs):
         d = float(displacement_scale)
         if not (np.isfinite(d) and d > 0):
             raise ValueError(f"displacement_scale must be finite and > 0, got {displacement_scale!r}")
         self._d = fem.Constant(mesh, d)
         self._newton_rtol = float(newton_rtol)
+        self._linear_path = bool(linear_path)
         interfaces = dict(kwargs.get("interfaces") or {})
         moving = {name: spec.tags for name, spec in interfaces.items()}
         moving.update(dict(mesh_boundaries or {}))
@@ -167,10 +175,12 @@ class MovingStokesSolver(StokesSolver):
 
     def _build_solver(self, F, trial, v, bcs, petsc_options):
         F = ufl.replace(F, {trial: self.w})
+        # every coefficient but the unknowns is data: the mesh position and the interface data
         self.newton = NewtonSolver(F, self.w, bcs, name=self.name, rtol=self._newton_rtol, reuse="adaptive",
                                    petsc_options=petsc_options,
-                                   J_reference=jacobian_at_rest(F, self.w, [self.mesh_displacement]))
-        return _NewtonAsLinear(self.newton)
+                                   J_reference=jacobian_at_rest(F, self.w, [self.mesh_displacement]),
+                                   data_coefficients=[c for c in F.coefficients() if c is not self.w])
+        return _NewtonAsLinear(self.newton, self._linear_path)
 
     # -- data ---------------------------------------------------------------------
     def _set_input(self, interface: str, key: str, values: np.ndarray) -> None:

@@ -540,7 +540,10 @@ class Device:
         fluid_mesh, fluid_tags = self.mesh.region("fluid")
         self.kinematics = params.kinematics
         finite = self.kinematics == "finite"
-        fluid_class, fluid_kw = (MovingStokesSolver, {"displacement_scale": d}) if finite else (StokesSolver, {})
+        # the moving fluid's linear path in steady runs only: a time-dependent iteration restarts
+        # from the window's checkpoint, and a resumed run must repeat the uninterrupted one
+        fluid_class, fluid_kw = ((MovingStokesSolver, {"displacement_scale": d, "linear_path": not transient})
+                                 if finite else (StokesSolver, {}))
         self.fluid = fluid_class(
             fluid_mesh, fluid_tags, viscosity=viscosity, velocity_bcs=b.fluid_velocity,
             component_bcs=b.fluid_component,

@@ -140,3 +140,35 @@ def test_mesh_motion_reuses_its_factorisation():
         solver.set_boundary_displacement("walls", lambda X, k=k: np.vstack([(0.1 + 0.05 * k) * X[1], 0.1 * X[1]]))
         solver.solve()
     assert solver.motion.stats["factorizations"] == 1
+
+
+def test_linear_path_with_a_moving_mesh_reaches_the_exact_solution():
+    """``linear_path``: a solve that continues from the previous solution takes one step with the
+    Jacobian at rest, the new mesh position and data being data of the step; repeated at a fixed
+    mesh position (a coupling loop's fixed point) it reaches the exact path's solution (1e-10)."""
+    def solver_at(linear_path):
+        msh, ft = meshes.rectangle(L, H, 0.25)
+        s = MovingStokesSolver(msh, ft, viscosity=MU,
+                               velocity_bcs=[((LEFT,), lambda X: np.vstack([4 * U * X[1] * (H - X[1]) / H**2,
+                                                                            0 * X[1]])),
+                                             ((BOTTOM, TOP), (0.0, 0.0))],
+                               mesh_boundaries={"walls": (TOP, RIGHT)}, linear_path=linear_path)
+        return s
+
+    def moved(a):
+        return lambda X: np.vstack([a * X[1] * X[0], 0.5 * a * X[1] * np.sin(X[0])])
+    exact, loop = solver_at(False), solver_at(True)
+    exact.set_boundary_displacement("walls", moved(2e-4))
+    exact.solve()
+    loop.set_boundary_displacement("walls", moved(1e-4))
+    loop.solve()
+    loop.set_boundary_displacement("walls", moved(2e-4))
+    errors = []
+    for _ in range(4):
+        loop.solve()
+        errors.append(np.linalg.norm(loop.w.x.array - exact.w.x.array) / np.linalg.norm(exact.w.x.array))
+    print(f"moving mesh, linear path: errors {errors}, linear steps {loop.newton.stats['linear_steps']}")
+    # (a solve whose first step is already below the tolerance ends there, not counted as a linear step)
+    assert loop.newton.stats["linear_steps"] >= 2 and exact.newton.stats["linear_steps"] == 0
+    assert errors[0] > 1e-9            # one step leaves the nonlinear remainder ...
+    assert errors[-1] < 1e-10          # ... which the continued solves remove
