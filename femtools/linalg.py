@@ -884,7 +884,9 @@ def schur_complement(K: "scipy.sparse.spmatrix", keep: np.ndarray) -> np.ndarray
     back-substitution per kept index (SuperLU with ~400 dense right-hand
     sides took 13x as long at a few thousand unknowns).  Local to the calling
     rank (``K`` replicated, e.g. from :func:`gather_csr`); petsc4py 3.18 does not
-    wrap PETSc's Schur calls, so they are called through ctypes.
+    wrap PETSc's Schur calls, so they are called through ctypes.  MUMPS does
+    not report a singular eliminated block on this path (a zero row there
+    passes): the caller's own factorisation of K's system is the check.
     """
     import ctypes
     keep = np.asarray(keep, dtype=PETSc.IntType)
@@ -909,7 +911,8 @@ def schur_complement(K: "scipy.sparse.spmatrix", keep: np.ndarray) -> np.ndarray
             raise RuntimeError("MatFactorSetSchurIS failed")
         ksp.setUp()
         if F.getMumpsInfog(1) < 0:
-            raise SingularSystemError(f"schur_complement: MUMPS failed, INFOG(1) = {F.getMumpsInfog(1)}")
+            raise FactorizationError(f"schur_complement: MUMPS failed (INFOG(1) = {F.getMumpsInfog(1)})",
+                                     F.getMumpsInfog(1))
         S, status = ctypes.c_void_p(), ctypes.c_int()
         if lib.MatFactorGetSchurComplement(handle, ctypes.byref(S), ctypes.byref(status)) != 0:
             raise RuntimeError("MatFactorGetSchurComplement failed")
@@ -922,6 +925,8 @@ def schur_complement(K: "scipy.sparse.spmatrix", keep: np.ndarray) -> np.ndarray
     finally:
         for obj in (ksp, M, kept):
             obj.destroy()
+    if not np.isfinite(out).all():
+        raise FactorizationError("schur_complement: the condensed matrix has NaN or Inf entries")
     return out
 
 
