@@ -42,11 +42,12 @@ DEFAULT_ICNTL = {14: 100, 24: 1}
 #: MUMPS's fill-reducing orderings (ICNTL(7)) in Debian's build, which has neither METIS nor SCOTCH
 MUMPS_ORDERINGS = {0: "AMD", 2: "AMF", 4: "PORD", 6: "QAMD", 7: "automatic"}
 
-#: AMF.  MUMPS's automatic choice takes PORD for some of the device's matrices,
-#: whose analysis calls clock() (a system call) at every elimination stage:
-#: 1.7-2x AMF's analysis time for factors within 7 % of AMF's (measured on the
-#: device's matrices at mesh size 1 and 0.5, README "Performance")
-DEFAULT_ORDERING = 2
+#: MUMPS's automatic choice (PORD for some of the device's matrices, AMF for others).
+#: AMF for all analyses faster (PORD calls clock(), a system call, at every
+#: elimination stage) but its elimination trees back-substitute more slowly: a
+#: time-dependent run, ~1100 back-substitutions per factorisation, took 1.11x as
+#: long (README "Performance")
+DEFAULT_ORDERING = 7
 
 
 class SolverStats(dict):

@@ -250,13 +250,14 @@ def test_direct_solver_keeps_its_mumps_controls():
     assert F.getMumpsIcntl(14) == 77 and F.getMumpsIcntl(24) == 1
 
 
-@pytest.mark.parametrize("options, used", [({}, 2), ({"mat_mumps_icntl_7": 4}, 4), ({"mat_mumps_icntl_7": 0}, 0),
+@pytest.mark.parametrize("options, used", [({"mat_mumps_icntl_7": 2}, 2), ({"mat_mumps_icntl_7": 4}, 4),
+                                           ({"mat_mumps_icntl_7": 0}, 0),
                                            ({"mat_mumps_icntl_7": 6, "pc_factor_shift_type": "none"}, 6)])
 def test_direct_solver_orders_by_the_ordering_asked_for(options, used):
-    """The ordering (ICNTL(7), default AMF) reaches MUMPS's analysis, also for a solver whose other
-    options go to the options database under a prefix (the last case), and is not left in that
-    database; INFOG(7) is the ordering MUMPS used.  An ordering Debian's MUMPS lacks (METIS, 5) is
-    refused with a message that names the control."""
+    """The ordering (ICNTL(7); default MUMPS's automatic choice) reaches MUMPS's analysis, also for a
+    solver whose other options go to the options database under a prefix (the last case), and is
+    not left in that database; INFOG(7) is the ordering MUMPS used.  An ordering Debian's MUMPS
+    lacks (METIS, 5) is refused with a message that names the control."""
     solver = DirectSolver(COMM, "ordering", dict(options))
     solver.set_operator(_tridiagonal(200))
     solver.factorize()
