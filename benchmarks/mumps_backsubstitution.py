@@ -4,7 +4,7 @@
     mpirun -n 2 .venv/bin/python benchmarks/mumps_backsubstitution.py
 
 Factorises the 5-point Laplacian of an n x n grid (LDL^T, the settings of
-``femtools.linalg.DirectSolver``: AMF ordering, distributed right-hand side on
+``femtools.linalg.DirectSolver``: MUMPS's own ordering, distributed right-hand side on
 several ranks) and prints the factorisation time, the number of entries in
 the factors and the mean time of one back-substitution.  Timings are printed,
 never asserted.  On the development machine (README "Performance") a
