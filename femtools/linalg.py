@@ -312,6 +312,13 @@ class BlockTriangularSolver:
         out[i1] = x1.array_r
 
 
+def _assemble_into(A: PETSc.Mat, form, bcs) -> None:
+    """Assemble ``form`` into ``A``, Dirichlet rows of ``bcs`` set to the identity."""
+    A.zeroEntries()
+    fem_petsc.assemble_matrix(A, form, bcs=bcs)
+    A.assemble()
+
+
 def _assemble_and_factorize(A: PETSc.Mat, form, bcs, solver: DirectSolver, stats: SolverStats,
                             sub=None, assemble=None) -> PETSc.Mat:
     """Assemble ``form`` into ``A`` (Dirichlet rows: identity), factorise it; returns the factorised matrix.
@@ -323,9 +330,7 @@ def _assemble_and_factorize(A: PETSc.Mat, form, bcs, solver: DirectSolver, stats
     if assemble is not None:
         assemble(A, form)
     else:
-        A.zeroEntries()
-        fem_petsc.assemble_matrix(A, form, bcs=bcs)
-        A.assemble()
+        _assemble_into(A, form, bcs)
     operator = A
     if sub is not None:
         rows, previous = sub
@@ -662,41 +667,26 @@ class NewtonSolver:
         K, dofs = K[np.ix_(use, use)], dofs[use]
         start, end = self.A.getOwnershipRange()
         mine = (dofs >= start) & (dofs < end)
-        seq = PETSc.Vec().createSeq(dofs.size, comm=MPI.COMM_SELF)
-        scatter = PETSc.Scatter().create(self.u.vector, PETSc.IS().createGeneral(dofs.astype(PETSc.IntType),
-                                                                                  comm=MPI.COMM_SELF), seq, None)
-        # K alone, as a matrix of A's layout, added to every assembly of A
+        # K alone, as a matrix of A's layout: added to every assembly of A, and K u_I = (K alone) u
         nnz = np.zeros(end - start, dtype=PETSc.IntType)
         nnz[dofs[mine] - start] = dofs.size
         alone = PETSc.Mat().createAIJ(self.A.getSizes(), nnz=(nnz, nnz), comm=self.A.getComm())
         alone.setValues(dofs[mine].astype(PETSc.IntType), dofs.astype(PETSc.IntType), K[mine],
                         addv=PETSc.InsertMode.ADD_VALUES)
         alone.assemble()
-        self._stiffness = dict(K_rows=K[mine], local_rows=(dofs[mine] - start).astype(np.int32), seq=seq,
-                               scatter=scatter, matrix=alone,
+        self._stiffness = dict(matrix=alone, force=alone.createVecLeft(),
                                structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
         self.invalidate_jacobian()
 
     def _assemble_matrix(self, A: PETSc.Mat, form) -> None:
         """Assemble ``form`` into ``A`` (Dirichlet rows: identity), plus the interface stiffness."""
-        A.zeroEntries()
-        fem_petsc.assemble_matrix(A, form, bcs=self.bcs)
-        A.assemble()
+        _assemble_into(A, form, self.bcs)
         st = self._stiffness
         if st is not None:
             # the first sum extends A's pattern by K's (setting K's entries into dolfinx's matrix
             # would reallocate its storage once per overflowing row); A keeps that pattern
             A.axpy(1.0, st["matrix"], structure=st["structure"])
             st["structure"] = PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN
-
-    def _stiffness_force(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """(owned local rows, K u_I at them), or None without an interface stiffness."""
-        st = self._stiffness
-        if st is None:
-            return None
-        st["scatter"].scatter(self.u.vector, st["seq"], addv=PETSc.InsertMode.INSERT_VALUES,
-                              mode=PETSc.ScatterMode.FORWARD)
-        return st["local_rows"], st["K_rows"] @ st["seq"].array_r
 
     def _current_state_key(self, sources=None) -> list[np.ndarray]:
         functions, constants = sources or self._state_sources
@@ -753,10 +743,9 @@ class NewtonSolver:
             # after the ghost update, so that each global dof receives its load exactly once
             with self.b.localForm() as loc:
                 loc.array[self._load_dofs] -= self._load_values
-        stiffness = self._stiffness_force()
-        if stiffness is not None:
-            with self.b.localForm() as loc:
-                loc.array[stiffness[0]] += stiffness[1]
+        if self._stiffness is not None:
+            self._stiffness["matrix"].mult(self.u.vector, self._stiffness["force"])
+            self.b.axpy(1.0, self._stiffness["force"])
         fem_petsc.set_bc(self.b, self.bcs, self.u.vector, -1.0)
         return self.b
 
