@@ -151,7 +151,7 @@ class NeoHookeanCellSolver(FieldSolver):
                  name: str = "cell", quadrature_degree: int = 4, petsc_options: dict | None = None,
                  newton_rtol: float = 1e-11, reuse: str = "adaptive", rigid_mode_rtol: float = 1e-6,
                  linear_path: bool = False):
-        super().__init__()
+        super().__init__(mesh)
         t0 = time.perf_counter()
         self.name = str(name)
         _validate_parameters(mu, lmbda, stress_scale, displacement_scale, quadrature_degree,

@@ -27,7 +27,8 @@ from dolfinx.mesh import create_mesh, meshtags_from_entities
 
 from femtools.gmshimport import import_gmsh
 
-__all__ = ["model_to_mesh", "model_to_region_mesh", "connected_components", "PARTITIONER", "ModelArrays"]
+__all__ = ["model_to_mesh", "model_to_region_mesh", "connected_components", "PARTITIONER", "ModelArrays",
+           "settle_coordinate_element"]
 
 #: gmsh element type -> (cell shape, degree) of the elements meshes are made of (dolfinx.io.gmshio's table)
 _GMSH_CELLS = {1: ("interval", 1), 2: ("triangle", 1), 3: ("quadrilateral", 1), 4: ("tetrahedron", 1),
@@ -60,6 +61,28 @@ class ModelArrays:
                    topology={int(k): v["topology"] for k, v in topo.items()},
                    markers={int(k): v["cell_data"] for k, v in topo.items()},
                    dims={int(k): int(model.mesh.getElementProperties(k)[1]) for k in topo})
+
+
+def settle_coordinate_element(msh):
+    """Give ``msh``'s ufl coordinate element the ``equispaced`` variant now; returns ``msh``.
+
+    FFCx 0.5 sets that variant on the shared ufl domain of every form it
+    compiles (not on a cache hit).  A test or trial function made before such
+    a compilation then differs (repr and hash) from one of the same space
+    made after it, and a form holding both fails ("Found different Arguments
+    with same number and part") on the first run on a machine only.  Meshes
+    from gmsh (:func:`model_to_mesh`) are built with the variant; dolfinx's
+    own ``create_rectangle`` etc. are not, so the field solvers settle their
+    mesh before they make any form.
+    """
+    domain = msh.ufl_domain()
+    element = domain.ufl_coordinate_element()
+    if element.variant() is None:
+        sub = element.sub_elements()[0]
+        domain._ufl_coordinate_element = ufl.VectorElement(ufl.FiniteElement(
+            sub.family(), sub.cell(), sub.degree(), sub.quadrature_scheme(), variant="equispaced"),
+            dim=element.value_shape()[0])
+    return msh
 
 
 def _ufl_mesh(gmsh_type: int, gdim: int) -> ufl.Mesh:

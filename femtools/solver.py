@@ -22,6 +22,7 @@ import numpy as np
 
 from femtools.interface import InterfaceNodes
 from femtools.linalg import SingularSystemError
+from femtools.mesh import settle_coordinate_element
 
 __all__ = ["FieldSolver"]
 
@@ -33,7 +34,9 @@ class FieldSolver(abc.ABC):
     #: the condition a singular system of this field most likely lacks (see SingularSystemError)
     singular_hint: str = ""
 
-    def __init__(self):
+    def __init__(self, mesh=None):
+        if mesh is not None:
+            settle_coordinate_element(mesh)      # before any form: see its docstring
         self._interfaces: dict[str, InterfaceNodes] = {}
         self._inputs: dict[str, dict[str, int]] = {}
         self.timing = {"setup": 0.0, "solve": 0.0, "solves": 0}

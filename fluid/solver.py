@@ -209,7 +209,7 @@ class StokesSolver(FieldSolver):
                  quadrature_degree: int = 4,
                  petsc_options: dict | None = None,
                  pressure_pin: typing.Sequence[float] | None = None):
-        super().__init__()
+        super().__init__(mesh)
         t0 = time.perf_counter()
         self.name = name
         viscosity = float(viscosity)

@@ -207,7 +207,7 @@ class PoroelasticGelSolver(FieldSolver):
                  transient: bool = False, kinematics: str = "small", newton_reuse: str = "adaptive",
                  linear_path: bool = False):
         t0 = time.perf_counter()
-        super().__init__()
+        super().__init__(mesh)
         if not isinstance(params, GelParameters):
             raise TypeError(f"params must be a GelParameters, got {type(params).__name__}")
         if int(quadrature_degree) < 1:

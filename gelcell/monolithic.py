@@ -85,6 +85,7 @@ import gel.forms as gel_forms
 import gel.lagrangian as gel_lagrangian
 from femtools.continuum import surface_stretch
 from femtools.functions import quadrature_measure
+from femtools.mesh import settle_coordinate_element
 from femtools.meshmotion import harmonic_residual
 from fluid.ale import ale_bulk_residual
 from femtools.linalg import NewtonSolver, jacobian_at_rest
@@ -134,7 +135,7 @@ class MonolithicSolver:
                  newton_rtol: float = 1e-12, petsc_options: dict | None = None,
                  transient: bool = False, cell_region_tags: typing.Sequence[int] | None = None):
         t0 = time.perf_counter()
-        self.mesh, self.cell_tags, self.facet_tags = msh, cell_tags, facet_tags
+        self.mesh, self.cell_tags, self.facet_tags = settle_coordinate_element(msh), cell_tags, facet_tags
         #: the cell tags of the cells (several cells: one tag each)
         self.cell_region_tags = tuple(int(t) for t in (cell_region_tags or (int(Tag.CELL),)))
         self.boundaries, self.coefficients = boundaries, coefficients

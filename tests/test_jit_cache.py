@@ -97,3 +97,43 @@ def test_a_cached_form_loads_without_listing_the_cache(tmp_path, monkeypatch):
             finders.clear()
     assert finders == [], f"the cached form was looked up by listing {finders}"
     assert values == pytest.approx([1.25, 1.25], rel=1e-13)
+
+
+def test_a_first_compilation_leaves_the_arguments_of_a_settled_mesh_equal(tmp_path):
+    """FFCx 0.5 gives the compiled form's mesh the equispaced coordinate variant at its first
+    compilation (a cache miss), so a test function made after it differs from one made before and
+    a form holding both fails; a mesh settled up front (the field solvers' meshes) keeps them equal.
+
+    The regression: the finite-strain gel with two fluid interfaces on a dolfinx rectangle failed
+    exactly so, on a machine whose cache lacked its interface flux form.
+    """
+    import ufl
+    from dolfinx import fem, mesh
+
+    from femtools.mesh import settle_coordinate_element
+    from gel.parameters import GelParameters
+    from gel.solver import PoroelasticGelSolver
+    from gel.testing import LEFT, RIGHT, rectangle
+
+    def made_before_and_after_a_compilation(msh, cache):
+        V = fem.FunctionSpace(msh, ("Lagrange", 1))
+        before = ufl.TestFunction(V)
+        fem.form(before * ufl.dx, jit_params={"cache_dir": str(cache)})    # an empty cache: it compiles
+        return before, ufl.TestFunction(V)
+
+    before, after = made_before_and_after_a_compilation(mesh.create_unit_square(MPI.COMM_SELF, 2, 2),
+                                                        tmp_path / f"plain{COMM.rank}")
+    assert hash(before) != hash(after), "FFCx no longer changes the mesh at a compilation: drop the settling"
+    with pytest.raises(Exception, match="different Arguments"):
+        ((before + after) * ufl.dx).arguments()
+    msh = settle_coordinate_element(mesh.create_unit_square(MPI.COMM_SELF, 2, 2))
+    before, after = made_before_and_after_a_compilation(msh, tmp_path / f"settled{COMM.rank}")
+    assert before == after and hash(before) == hash(after)
+    form = (before + after) * ufl.dx
+    assert len(form.arguments()) == 1
+    # the field solvers settle the mesh they are given
+    msh, ft = rectangle(0.0, 0.0, 1.0, 0.25, 2, 1)
+    assert msh.ufl_domain().ufl_coordinate_element().variant() is None
+    PoroelasticGelSolver(msh, ft, GelParameters(phi_s0=0.1, lambda_s=1.5, xi=4.5e4, eta=0.02, Ca=1e-6),
+                         fluid_interfaces={"in": LEFT, "out": RIGHT}, kinematics="finite", no_slip=[RIGHT])
+    assert msh.ufl_domain().ufl_coordinate_element().variant() == "equispaced"
