@@ -39,6 +39,12 @@ _ICNTL = re.compile(r"^mat_mumps_icntl_(\d+)$")
 #: reads to refuse a singular system (none of the device systems has a null pivot).
 DEFAULT_ICNTL = {14: 100, 24: 1}
 
+#: CNTL(3): a pivot below this times the norm of MUMPS's scaled matrix counts as null.  MUMPS's own
+#: default (1e-5 machine epsilons) is far below round-off: a rigid mode left free by the boundary
+#: conditions then leaves a pivot of ~1e-15 and passes, depending on the elimination order (the
+#: gel's displacement block on 2 ranks did); regular device systems pass with 1e-9
+NULL_PIVOT_THRESHOLD = 1e-12
+
 #: MUMPS's fill-reducing orderings (ICNTL(7)) in Debian's build, which has neither METIS nor SCOTCH
 MUMPS_ORDERINGS = {0: "AMD", 2: "AMF", 4: "PORD", 6: "QAMD", 7: "automatic"}
 
@@ -184,6 +190,7 @@ class DirectSolver:
             F = pc.getFactorMatrix()
             for k, v in self.icntl.items():
                 F.setMumpsIcntl(k, v)
+            F.setMumpsCntl(3, NULL_PIVOT_THRESHOLD)
         if mumps:
             # read by the analysis, under the operator's prefix; removed again, so that no other solver sees it
             ordering = (self.ksp.getOperators()[0].getOptionsPrefix() or "") + "mat_mumps_icntl_7"

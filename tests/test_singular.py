@@ -91,3 +91,33 @@ def test_pressure_is_checked_in_each_fluid_part(normal_fluid):
         _normal_fluid_solver(msh, ft, "dirichlet")
     x = float(str(info.value).split("near (")[1].split(",")[0])
     assert -1.0 < x < 0.0                                # the upstream part, x in [-1, 0]
+
+
+@pytest.mark.parametrize("delta, singular", [(1e-15, True), (1e-6, False)])
+def test_a_pivot_at_round_off_is_null(delta, singular):
+    """[[1, 1], [1, 1 + delta]]: its second pivot is delta.  At delta = 1e-15 (round-off of the
+    unit entries) the matrix is singular to working precision and refused; MUMPS's own default
+    threshold (1e-5 machine epsilons) let such a pivot pass.  At 1e-6 it is regular and solves."""
+    from petsc4py import PETSc
+
+    from femtools.linalg import DirectSolver
+
+    comm = MPI.COMM_WORLD
+    A = PETSc.Mat().createAIJ(((None, 2), (None, 2)), nnz=2, comm=comm)
+    start, end = A.getOwnershipRange()
+    full = np.array([[1.0, 1.0], [1.0, 1.0 + delta]])
+    for i in range(start, end):
+        A.setValues([i], [0, 1], full[i])
+    A.assemble()
+    solver = DirectSolver(comm, "toy")
+    solver.set_operator(A)
+    if singular:
+        with pytest.raises(SingularSystemError, match="^toy: the linear system is singular"):
+            solver.factorize_symmetric_if_possible()
+    else:
+        solver.factorize_symmetric_if_possible()
+        b, x = A.createVecLeft(), A.createVecRight()
+        b.setValues(range(start, end), (full @ np.ones(2))[start:end])
+        b.assemble()
+        solver.solve(b, x)
+        assert np.allclose(x.array_r, 1.0, rtol=1e-8)
