@@ -44,6 +44,7 @@ from cell import forms
 from femtools.functions import quadrature_measure, von_mises
 from femtools.interface import InterfaceNodes
 from femtools.linalg import NewtonSolver, assemble_residual_vector, gather_csr, jacobian_at_rest, schur_complement
+from femtools.mesh import as_tags
 from femtools.solver import FieldSolver
 
 __all__ = ["NeoHookeanCellSolver"]
@@ -51,10 +52,6 @@ __all__ = ["NeoHookeanCellSolver"]
 logger = logging.getLogger(__name__)
 
 Tags = typing.Union[int, typing.Iterable[int]]
-
-
-def _tag_list(tags: Tags) -> list[int]:
-    return [int(tags)] if np.isscalar(tags) else [int(t) for t in tags]
 
 
 class NeoHookeanCellSolver(FieldSolver):
@@ -199,7 +196,7 @@ class NeoHookeanCellSolver(FieldSolver):
         self._robin: dict[str, dict] = {}
         for iname, entry in robin_interfaces.items():
             tags, kappa = _unpack(entry, 2, f"robin_interfaces[{iname!r}]")
-            tags = _tag_list(tags)
+            tags = as_tags(tags)
             self._facets(tags, f"robin_interfaces[{iname!r}]")
             if not (np.isfinite(kappa) and kappa > 0):
                 raise ValueError(f"{self.name}: robin_interfaces[{iname!r}]: kappa = {kappa!r} must be > 0")
@@ -223,7 +220,7 @@ class NeoHookeanCellSolver(FieldSolver):
         self._interface_bc_values: dict[str, fem.Function] = {}
         self._interface_bcs: dict[str, fem.DirichletBCMetaClass] = {}
         for iname, tags in interfaces.items():
-            tags = _tag_list(tags)
+            tags = as_tags(tags)
             facets = self._facets(tags, f"interfaces[{iname!r}]")
             g = fem.Function(self.V, name=f"u_{iname}")
             bcs.append(fem.dirichletbc(g, fem.locate_dofs_topological(self.V, self._fdim, facets)))
@@ -241,7 +238,7 @@ class NeoHookeanCellSolver(FieldSolver):
             if len(entry) not in (2, 3):
                 raise ValueError(f"dirichlet[{k}] must be (tags, value) or (tags, value, component), "
                                  f"got {entry!r}")
-            tags, value = _tag_list(entry[0]), entry[1]
+            tags, value = as_tags(entry[0]), entry[1]
             comp = _component(entry[2], f"dirichlet[{k}]") if len(entry) == 3 else None
             facets = self._facets(tags, f"dirichlet[{k}]")
             if comp is None:
@@ -558,7 +555,7 @@ class NeoHookeanCellSolver(FieldSolver):
         forces, no loads, no boundary conditions) at every node of those
         facets; nodes shared with other boundaries count fully.
         """
-        tags = _tag_list(tags)
+        tags = as_tags(tags)
         facets = self._facets(tags, "boundary_force")
         blocks = fem.locate_dofs_topological(self.V, self._fdim, facets)
         blocks = blocks[blocks < self.V.dofmap.index_map.size_local]
@@ -569,7 +566,7 @@ class NeoHookeanCellSolver(FieldSolver):
 def _unpack(entry, n: int, what: str):
     if len(entry) != n:
         raise ValueError(f"{what} must be a tuple of {n} items (tags, value), got {entry!r}")
-    return _tag_list(entry[0]), entry[1]
+    return as_tags(entry[0]), entry[1]
 
 
 def _component(comp, what: str) -> int:

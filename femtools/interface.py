@@ -22,6 +22,8 @@ import ufl
 from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
 
+from femtools.mesh import as_tags
+
 __all__ = ["InterfaceNodes", "InterfaceMass"]
 
 
@@ -47,7 +49,7 @@ class InterfaceNodes:
                  parent_dofs: typing.Sequence[int] | None = None):
         msh = V.mesh
         self.comm: MPI.Comm = msh.comm
-        self.tags = [int(tags)] if np.isscalar(tags) else [int(t) for t in tags]
+        self.tags = as_tags(tags, "InterfaceNodes tags")
         gdim = msh.geometry.dim
         fdim = msh.topology.dim - 1
         facets = np.unique(np.hstack([facet_tags.find(t) for t in self.tags]).astype(np.int32))

@@ -28,7 +28,7 @@ from dolfinx.mesh import create_mesh, meshtags_from_entities
 from femtools.gmshimport import import_gmsh
 
 __all__ = ["model_to_mesh", "model_to_region_mesh", "connected_components", "PARTITIONER", "ModelArrays",
-           "settle_coordinate_element"]
+           "settle_coordinate_element", "as_tags"]
 
 #: gmsh element type -> (cell shape, degree) of the elements meshes are made of (dolfinx.io.gmshio's table)
 _GMSH_CELLS = {1: ("interval", 1), 2: ("triangle", 1), 3: ("quadrilateral", 1), 4: ("tetrahedron", 1),
@@ -61,6 +61,22 @@ class ModelArrays:
                    topology={int(k): v["topology"] for k, v in topo.items()},
                    markers={int(k): v["cell_data"] for k, v in topo.items()},
                    dims={int(k): int(model.mesh.getElementProperties(k)[1]) for k in topo})
+
+
+def as_tags(tags, what: str = "tags") -> tuple[int, ...]:
+    """An int or an iterable of ints (facet or cell tags) as a tuple of ints; ``what`` names the
+    parameter in the TypeError (not ints) or ValueError (none given)."""
+    if isinstance(tags, (str, bytes)):
+        raise TypeError(f"{what}: tags must be an int or an iterable of ints, got {tags!r}")
+    if np.isscalar(tags):
+        tags = (tags,)
+    try:
+        out = tuple(int(t) for t in tags)
+    except (TypeError, ValueError):
+        raise TypeError(f"{what}: tags must be an int or an iterable of ints, got {tags!r}") from None
+    if not out:
+        raise ValueError(f"{what}: empty tag list")
+    return out
 
 
 def settle_coordinate_element(msh):

@@ -36,6 +36,7 @@ from dolfinx import fem, mesh as dmesh
 from femtools.functions import quadrature_measure
 from femtools.interface import InterfaceNodes
 from femtools.linalg import LinearSolver
+from femtools.mesh import as_tags
 
 __all__ = ["harmonic_residual", "MeshMotion", "boundary_facets"]
 
@@ -79,7 +80,7 @@ class MeshMotion:
         bcs = []
         used = []
         for key, tags in moving.items():
-            tags = [int(tags)] if np.isscalar(tags) else [int(t) for t in tags]
+            tags = as_tags(tags, f"moving[{key!r}]")
             facets = boundary_facets(msh, facet_tags, tags)
             used.append(facets)
             g = fem.Function(V, name=f"{key}_displacement")
@@ -87,7 +88,7 @@ class MeshMotion:
             self.nodes[key] = InterfaceNodes(V, facet_tags, tags)
             bcs.append(fem.dirichletbc(g, fem.locate_dofs_topological(V, fdim, facets)))
         for tags, comp in sliding:
-            tags = [int(tags)] if np.isscalar(tags) else [int(t) for t in tags]
+            tags = as_tags(tags, "sliding")
             facets = boundary_facets(msh, facet_tags, tags)
             used.append(facets)
             Vc, _ = V.sub(int(comp)).collapse()

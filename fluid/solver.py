@@ -55,7 +55,7 @@ from dolfinx.fem import petsc as fem_petsc
 
 from femtools.functions import quadrature_measure
 from femtools.interface import InterfaceMass, InterfaceNodes
-from femtools.mesh import connected_components
+from femtools.mesh import as_tags, connected_components
 from femtools.linalg import LinearSolver, SolverStats
 from femtools.solver import FieldSolver
 from fluid import forms
@@ -88,9 +88,7 @@ class FluidInterface:
     alpha_t: float = 0.0
 
     def __post_init__(self):
-        self.tags = [int(self.tags)] if np.isscalar(self.tags) else [int(t) for t in self.tags]
-        if not self.tags:
-            raise ValueError("FluidInterface: tags must name at least one facet tag")
+        self.tags = as_tags(self.tags, "FluidInterface.tags")
         for part in ("normal", "tangential"):
             kind = getattr(self, part)
             if kind not in _KINDS:
@@ -116,10 +114,6 @@ class FluidInterface:
         if self.tangential == "robin":
             out["robin_tangential"] = 2
         return out
-
-
-def _as_tags(tags) -> list[int]:
-    return [int(tags)] if np.isscalar(tags) else [int(t) for t in tags]
 
 
 class _Interface:
@@ -245,8 +239,8 @@ class StokesSolver(FieldSolver):
         self.dx = quadrature_measure("dx", mesh, degree=self.quadrature_degree)
 
         # -- tags ----------------------------------------------------------------
-        velocity_bcs = [(_as_tags(tags), value) for tags, value in velocity_bcs]
-        component_bcs = [(_as_tags(tags), int(c), value) for tags, c, value in component_bcs]
+        velocity_bcs = [(as_tags(tags, "velocity_bcs"), value) for tags, value in velocity_bcs]
+        component_bcs = [(as_tags(tags, "component_bcs"), int(c), value) for tags, c, value in component_bcs]
         for tags, c, _ in component_bcs:
             if c not in (0, 1):
                 raise ValueError(f"{name}: component_bcs component must be 0 (x) or 1 (y), got {c} for tags {tags}")

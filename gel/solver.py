@@ -96,6 +96,7 @@ from dolfinx.fem import petsc as fem_petsc
 from femtools.functions import interpolate, quadrature_measure, von_mises
 from femtools.interface import InterfaceNodes
 from femtools.linalg import NewtonSolver, assemble_residual_vector, jacobian_at_rest
+from femtools.mesh import as_tags
 from femtools.serialize import CanonicalOrder, MixedCanonical
 from femtools.solver import FieldSolver
 from femtools.timestepping import RateHistory
@@ -120,19 +121,6 @@ FIELDS = ("w", "u", "p")
 DEFAULT_PETSC_OPTIONS = {"mat_mumps_icntl_8": 8, "mat_mumps_icntl_14": 200}
 _FIELD_INDEX = {name: i for i, name in enumerate(FIELDS)}
 _FIELD_INDEX["v_f"] = 0     # Dirichlet data for v_f are data for w (= v_f where v_s = 0)
-
-
-def _as_tags(tags, what: str) -> tuple[int, ...]:
-    """Normalise an int or an iterable of ints to a tuple of ints."""
-    if isinstance(tags, (int, np.integer)):
-        return (int(tags),)
-    try:
-        out = tuple(int(t) for t in tags)
-    except TypeError:
-        raise TypeError(f"{what}: tags must be an int or an iterable of ints, got {tags!r}") from None
-    if not out:
-        raise ValueError(f"{what}: empty tag list")
-    return out
 
 
 class PoroelasticGelSolver(FieldSolver):
@@ -452,7 +440,7 @@ class PoroelasticGelSolver(FieldSolver):
                                           ).astype(np.int32)
 
     def _check_tags(self, tags, what: str) -> tuple[int, ...]:
-        tags = _as_tags(tags, what)
+        tags = as_tags(tags, what)
         missing = [t for t in tags if t not in self._present_tags]
         if missing:
             raise ValueError(f"{self.name}: {what}: facet tag(s) {missing} not in the mesh's facet tags "

@@ -121,3 +121,20 @@ def test_a_pivot_at_round_off_is_null(delta, singular):
         b.assemble()
         solver.solve(b, x)
         assert np.allclose(x.array_r, 1.0, rtol=1e-8)
+
+
+def test_tags_are_normalised_in_one_place_and_bad_ones_named():
+    """Every field solver reads its facet tags through femtools.mesh.as_tags: an int or ints, named
+    in the error otherwise (a string is not read digit by digit)."""
+    from femtools.mesh import as_tags
+
+    assert as_tags(3) == (3,) and as_tags(np.int32(4)) == (4,) and as_tags(np.array([5, 6])) == (5, 6)
+    with pytest.raises(TypeError, match="^no_slip: tags must be an int or an iterable of ints, got '12'"):
+        as_tags("12", "no_slip")
+    with pytest.raises(ValueError, match="^symmetry: empty tag list"):
+        as_tags([], "symmetry")
+    msh, ft = rectangle(0.0, 0.0, 1.0, 1.0, 2, 2)
+    with pytest.raises(TypeError, match="^no_slip: tags must be"):
+        PoroelasticGelSolver(msh, ft, GelParameters.viscous_units(), no_slip="1")
+    with pytest.raises(ValueError, match="^FluidInterface.tags: empty tag list"):
+        FluidInterface(tags=[])
