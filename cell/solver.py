@@ -44,7 +44,7 @@ from cell import forms
 from femtools.functions import quadrature_measure, von_mises
 from femtools.interface import InterfaceNodes
 from femtools.linalg import NewtonSolver, assemble_residual_vector, gather_csr, jacobian_at_rest, schur_complement
-from femtools.mesh import as_tags
+from femtools.mesh import as_tags, tagged_facets
 from femtools.solver import FieldSolver
 
 __all__ = ["NeoHookeanCellSolver"]
@@ -271,7 +271,7 @@ class NeoHookeanCellSolver(FieldSolver):
     # -- construction helpers ----------------------------------------------
     def _facets(self, tags: list[int], what: str) -> np.ndarray:
         """Local facets with any of ``tags``; raise if none exists on any rank."""
-        facets = np.unique(np.hstack([self.facet_tags.find(t) for t in tags])).astype(np.int32)
+        facets = tagged_facets(self.facet_tags, tags)
         if self.comm.allreduce(facets.size, op=MPI.SUM) == 0:
             present = sorted(set(self.comm.allreduce(set(np.unique(self.facet_tags.values).tolist()),
                                                      op=MPI.BOR)))

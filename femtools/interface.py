@@ -22,7 +22,7 @@ import ufl
 from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
 
-from femtools.mesh import as_tags
+from femtools.mesh import as_tags, tagged_facets
 
 __all__ = ["InterfaceNodes", "InterfaceMass"]
 
@@ -52,7 +52,7 @@ class InterfaceNodes:
         self.tags = as_tags(tags, "InterfaceNodes tags")
         gdim = msh.geometry.dim
         fdim = msh.topology.dim - 1
-        facets = np.unique(np.hstack([facet_tags.find(t) for t in self.tags]).astype(np.int32))
+        facets = tagged_facets(facet_tags, self.tags)
         blocks = fem.locate_dofs_topological(V, fdim, facets)
         n_owned = V.dofmap.index_map.size_local
         self.bs = V.dofmap.index_map_bs

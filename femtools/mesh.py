@@ -28,7 +28,7 @@ from dolfinx.mesh import create_mesh, meshtags_from_entities
 from femtools.gmshimport import import_gmsh
 
 __all__ = ["model_to_mesh", "model_to_region_mesh", "connected_components", "PARTITIONER", "ModelArrays",
-           "settle_coordinate_element", "as_tags"]
+           "settle_coordinate_element", "as_tags", "tagged_facets"]
 
 #: gmsh element type -> (cell shape, degree) of the elements meshes are made of (dolfinx.io.gmshio's table)
 _GMSH_CELLS = {1: ("interval", 1), 2: ("triangle", 1), 3: ("quadrilateral", 1), 4: ("tetrahedron", 1),
@@ -77,6 +77,12 @@ def as_tags(tags, what: str = "tags") -> tuple[int, ...]:
     if not out:
         raise ValueError(f"{what}: empty tag list")
     return out
+
+
+def tagged_facets(facet_tags, tags) -> np.ndarray:
+    """This rank's facets carrying any of ``tags`` (an int or ints; none: none): sorted, unique, int32."""
+    found = [facet_tags.find(int(t)) for t in ([tags] if np.isscalar(tags) else tags)]
+    return np.unique(np.hstack(found + [np.empty(0, np.int32)])).astype(np.int32)
 
 
 def settle_coordinate_element(msh):

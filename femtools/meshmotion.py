@@ -36,19 +36,14 @@ from dolfinx import fem, mesh as dmesh
 from femtools.functions import quadrature_measure
 from femtools.interface import InterfaceNodes
 from femtools.linalg import LinearSolver
-from femtools.mesh import as_tags
+from femtools.mesh import as_tags, tagged_facets
 
-__all__ = ["harmonic_residual", "MeshMotion", "boundary_facets"]
+__all__ = ["harmonic_residual", "MeshMotion"]
 
 
 def harmonic_residual(u_m, z, dx):
     """int grad u_m : grad z dX."""
     return ufl.inner(ufl.grad(u_m), ufl.grad(z)) * dx
-
-
-def boundary_facets(msh, facet_tags, tags: typing.Iterable[int]) -> np.ndarray:
-    found = [facet_tags.find(int(t)) for t in tags]
-    return np.unique(np.hstack(found).astype(np.int32)) if found else np.empty(0, np.int32)
 
 
 class MeshMotion:
@@ -81,7 +76,7 @@ class MeshMotion:
         used = []
         for key, tags in moving.items():
             tags = as_tags(tags, f"moving[{key!r}]")
-            facets = boundary_facets(msh, facet_tags, tags)
+            facets = tagged_facets(facet_tags, tags)
             used.append(facets)
             g = fem.Function(V, name=f"{key}_displacement")
             self._data[key] = g
@@ -89,7 +84,7 @@ class MeshMotion:
             bcs.append(fem.dirichletbc(g, fem.locate_dofs_topological(V, fdim, facets)))
         for tags, comp in sliding:
             tags = as_tags(tags, "sliding")
-            facets = boundary_facets(msh, facet_tags, tags)
+            facets = tagged_facets(facet_tags, tags)
             used.append(facets)
             Vc, _ = V.sub(int(comp)).collapse()
             dofs = fem.locate_dofs_topological((V.sub(int(comp)), Vc), fdim, facets)

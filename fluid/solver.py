@@ -55,7 +55,7 @@ from dolfinx.fem import petsc as fem_petsc
 
 from femtools.functions import quadrature_measure
 from femtools.interface import InterfaceMass, InterfaceNodes
-from femtools.mesh import as_tags, connected_components
+from femtools.mesh import as_tags, connected_components, tagged_facets
 from femtools.linalg import LinearSolver, SolverStats
 from femtools.solver import FieldSolver
 from fluid import forms
@@ -320,9 +320,7 @@ class StokesSolver(FieldSolver):
         return LinearSolver(a, L, self.w, bcs, name=self.name, petsc_options=petsc_options)
 
     def _facets(self, tags: typing.Sequence[int]) -> np.ndarray:
-        """Local facets carrying any of ``tags`` (sorted, unique)."""
-        found = [self.facet_tags.find(int(t)) for t in tags]
-        return np.unique(np.hstack(found).astype(np.int32)) if found else np.empty(0, np.int32)
+        return tagged_facets(self.facet_tags, tags)
 
     def _check_tags(self, velocity_bcs, component_bcs, interfaces) -> None:
         """Every tag exists somewhere; interface tags are used by nothing else."""

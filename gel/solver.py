@@ -96,7 +96,7 @@ from dolfinx.fem import petsc as fem_petsc
 from femtools.functions import interpolate, quadrature_measure, von_mises
 from femtools.interface import InterfaceNodes
 from femtools.linalg import NewtonSolver, assemble_residual_vector, jacobian_at_rest
-from femtools.mesh import as_tags
+from femtools.mesh import as_tags, tagged_facets
 from femtools.serialize import CanonicalOrder, MixedCanonical
 from femtools.solver import FieldSolver
 from femtools.timestepping import RateHistory
@@ -434,8 +434,8 @@ class PoroelasticGelSolver(FieldSolver):
         tdim = self.mesh.topology.dim
         self.mesh.topology.create_connectivity(tdim - 1, tdim)
         f2c = self.mesh.topology.connectivity(tdim - 1, tdim)
-        facets = [self.facet_tags.find(t) for d in self._fluid.values() for t in d["tags"]]
-        facets = np.unique(np.hstack(facets + [np.empty(0, np.int32)])).astype(np.int32)
+        tags = [t for d in self._fluid.values() for t in d["tags"]]
+        facets = tagged_facets(self.facet_tags, tags) if tags else np.empty(0, np.int32)
         self._interface_cells = np.unique(np.hstack([f2c.links(f) for f in facets] + [np.empty(0, np.int32)])
                                           ).astype(np.int32)
 
@@ -470,7 +470,7 @@ class PoroelasticGelSolver(FieldSolver):
                                  f"{bs} components, got {value!r}")
             g.x.array.reshape(-1, bs)[:] = val
         g.x.scatter_forward()
-        facets = np.unique(np.hstack([self.facet_tags.find(t) for t in tags]).astype(np.int32))
+        facets = tagged_facets(self.facet_tags, tags)
         dofs = fem.locate_dofs_topological((sub, space), self.mesh.topology.dim - 1, facets)
         self._bc_functions.append(g)
         return fem.dirichletbc(g, dofs, sub)

@@ -85,7 +85,7 @@ import gel.forms as gel_forms
 import gel.lagrangian as gel_lagrangian
 from femtools.continuum import surface_stretch
 from femtools.functions import quadrature_measure
-from femtools.mesh import settle_coordinate_element
+from femtools.mesh import settle_coordinate_element, tagged_facets
 from femtools.meshmotion import harmonic_residual
 from fluid.ale import ale_bulk_residual
 from femtools.linalg import NewtonSolver, jacobian_at_rest
@@ -251,7 +251,7 @@ class MonolithicSolver:
         return sub, sub.collapse()[0]
 
     def _facets(self, tags) -> np.ndarray:
-        return np.unique(np.hstack([self.facet_tags.find(int(t)) for t in tags]).astype(np.int32))
+        return tagged_facets(self.facet_tags, tags)
 
     def _dirichlet(self, i, tags, value=None, comp=None, restrict=None):
         sub, Vs = self._sub(i, comp)
