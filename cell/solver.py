@@ -41,7 +41,7 @@ from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
 
 from cell import forms
-from femtools.functions import quadrature_measure, von_mises
+from femtools.functions import quadrature_measure, set_function, von_mises
 from femtools.interface import InterfaceNodes
 from femtools.linalg import NewtonSolver, assemble_residual_vector, gather_csr, jacobian_at_rest, schur_complement
 from femtools.mesh import as_tags, tagged_facets
@@ -287,23 +287,7 @@ class NeoHookeanCellSolver(FieldSolver):
                 raise ValueError(f"{self.name}: {what}: traction must be a 2-vector, "
                                  f"got shape {value.ufl_shape}")
             return value
-        t = fem.Function(self.V)
-        self._set_function(t, value, what)
-        return t
-
-    def _set_function(self, g: fem.Function, value, what: str) -> None:
-        """Set ``g`` (vector or scalar Function) from a constant or a callable."""
-        bs = g.function_space.dofmap.index_map_bs
-        if callable(value):
-            g.interpolate(value)
-        else:
-            value = np.asarray(value, dtype=float).reshape(-1)
-            if value.size != bs:
-                raise ValueError(f"{self.name}: {what}: expected {bs} component(s), got {value.size}")
-            g.x.array.reshape(-1, bs)[:] = value
-        if not np.all(np.isfinite(g.x.array)):
-            raise FloatingPointError(f"{self.name}: {what}: value contains NaN or Inf")
-        g.x.scatter_forward()
+        return set_function(fem.Function(self.V), value, f"{self.name}: {what}")
 
     def _point_constraints(self):
         """Pins: u = 0 at the smallest node A (in x, then y), u_y = 0 at the node B of largest x."""
@@ -398,7 +382,7 @@ class NeoHookeanCellSolver(FieldSolver):
     def set_dirichlet(self, index: int, value) -> None:
         """Change the value of ``dirichlet[index]`` (constant or callable, units of d)."""
         _, g = self._dirichlet[index]
-        self._set_function(g, value, f"dirichlet[{index}]")
+        set_function(g, value, f"{self.name}: dirichlet[{index}]")
 
     def set_traction(self, index: int, value) -> None:
         """Change ``tractions[index]`` (constant or callable, units of s; not for UFL tractions)."""
@@ -406,7 +390,7 @@ class NeoHookeanCellSolver(FieldSolver):
         if not isinstance(t, fem.Function):
             raise TypeError(f"{self.name}: tractions[{index}] is a UFL expression; change its "
                             f"Constants instead")
-        self._set_function(t, value, f"tractions[{index}]")
+        set_function(t, value, f"{self.name}: tractions[{index}]")
 
     # -- rigid modes -------------------------------------------------------------
     def _check_rigid_modes(self) -> None:

@@ -18,7 +18,7 @@ jitcache.install()
 LAGRANGE_FAMILIES = ("Lagrange", "P", "CG", "Q")
 
 __all__ = ["LAGRANGE_FAMILIES", "integrate", "gather_rows", "owned_values", "global_max", "interpolate",
-           "NodalAverage", "von_mises", "green_lagrange", "quadrature_measure"]
+           "set_function", "NodalAverage", "von_mises", "green_lagrange", "quadrature_measure"]
 
 
 def integrate(expr, measure, comm: MPI.Comm | None = None) -> float:
@@ -54,6 +54,30 @@ def global_max(values: np.ndarray, comm: MPI.Comm) -> float:
     """Maximum of a local array over all ranks (``-inf`` if empty everywhere)."""
     local = float(np.max(values)) if np.size(values) else -np.inf
     return comm.allreduce(local, op=MPI.MAX)
+
+
+def set_function(g: fem.Function, value, what: str) -> fem.Function:
+    """Set ``g`` from a number (every component), one number per component, or a callable
+    ``x -> values`` as for ``Function.interpolate``; returns ``g``.
+
+    ``what`` names the input in the errors: ValueError for another size,
+    FloatingPointError for NaN or Inf (boundary data, loads).
+    """
+    bs = g.function_space.dofmap.index_map_bs
+    if callable(value):
+        g.interpolate(value)
+    else:
+        try:
+            val = np.asarray(value, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            val = None
+        if val is None or val.size not in (1, bs):
+            raise ValueError(f"{what}: must be a number, {bs} numbers or a callable x -> values, got {value!r}")
+        g.x.array.reshape(-1, bs)[:] = val
+    if not np.all(np.isfinite(g.x.array)):
+        raise FloatingPointError(f"{what}: contains NaN or Inf")
+    g.x.scatter_forward()
+    return g
 
 
 def interpolate(expr, V: fem.FunctionSpace, name: str | None = None) -> fem.Function:

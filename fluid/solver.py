@@ -53,7 +53,7 @@ import ufl
 from dolfinx import cpp as _cpp, fem, mesh as dmesh
 from dolfinx.fem import petsc as fem_petsc
 
-from femtools.functions import quadrature_measure
+from femtools.functions import quadrature_measure, set_function
 from femtools.interface import InterfaceMass, InterfaceNodes
 from femtools.mesh import as_tags, connected_components, tagged_facets
 from femtools.linalg import LinearSolver, SolverStats
@@ -388,16 +388,7 @@ class StokesSolver(FieldSolver):
         return fem.locate_dofs_topological(self.V, self._fdim, self._facets(tags))   # V blocks
 
     def _velocity_bc(self, tags, value) -> fem.DirichletBCMetaClass:
-        g = fem.Function(self.V)
-        if callable(value):
-            g.interpolate(value)
-        else:
-            value = np.asarray(value, dtype=float)
-            if value.shape != (2,):
-                raise ValueError(f"{self.name}: velocity_bcs value for tags {tags} must be (vx, vy) "
-                                 f"or a callable, got {value!r}")
-            g.x.array.reshape(-1, 2)[:] = value
-        g.x.scatter_forward()
+        g = set_function(fem.Function(self.V), value, f"{self.name}: velocity_bcs value for tags {tags}")
         self._boundary_values.append((g, g.x.array.copy()))
         dofs = fem.locate_dofs_topological((self.W.sub(0), self.V), self._fdim, self._facets(tags))
         blocks = self._locate(tags)
@@ -407,16 +398,9 @@ class StokesSolver(FieldSolver):
 
     def _component_bc(self, tags, c, value) -> fem.DirichletBCMetaClass:
         Vc = self._Vc[c][0]
-        g = fem.Function(Vc)
-        if callable(value):
-            g.interpolate(lambda x: np.asarray(value(x), dtype=float).reshape(-1))
-        else:
-            try:
-                g.x.array[:] = float(value)
-            except (TypeError, ValueError):
-                raise ValueError(f"{self.name}: component_bcs value for tags {tags} must be a float "
-                                 f"or a callable, got {value!r}") from None
-        g.x.scatter_forward()
+        if callable(value):     # a scalar space: (n,) values
+            value = (lambda x, f=value: np.asarray(f(x), dtype=float).reshape(-1))
+        g = set_function(fem.Function(Vc), value, f"{self.name}: component_bcs value for tags {tags}")
         self._boundary_values.append((g, g.x.array.copy()))
         dofs = fem.locate_dofs_topological((self.W.sub(0).sub(c), Vc), self._fdim, self._facets(tags))
         self._mark_constrained(2 * self._locate(tags) + c, c)

@@ -93,7 +93,7 @@ import ufl
 from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
 
-from femtools.functions import interpolate, quadrature_measure, von_mises
+from femtools.functions import interpolate, quadrature_measure, set_function, von_mises
 from femtools.interface import InterfaceNodes
 from femtools.linalg import NewtonSolver, assemble_residual_vector, jacobian_at_rest
 from femtools.mesh import as_tags, tagged_facets
@@ -386,17 +386,7 @@ class PoroelasticGelSolver(FieldSolver):
 
     def set_traction(self, index: int, value) -> None:
         """Change ``tractions[index]``: a (2,) vector or a callable ``x -> (2, n)`` (stress unit s)."""
-        t = self._tractions[index]
-        if callable(value):
-            t.interpolate(value)
-        else:
-            val = np.asarray(value, dtype=float).ravel()
-            if val.size != 2:
-                raise ValueError(f"{self.name}: tractions[{index}] must be a 2-vector or a callable, got {value!r}")
-            t.x.array.reshape(-1, 2)[:] = val
-        if not np.all(np.isfinite(t.x.array)):
-            raise FloatingPointError(f"{self.name}: tractions[{index}] contains NaN or Inf")
-        t.x.scatter_forward()
+        set_function(self._tractions[index], value, f"{self.name}: tractions[{index}]")
 
     def _build_bcs(self, no_slip, symmetry, dirichlet) -> list:
         """Dirichlet conditions: no slip, symmetry, w = 0 on cell interfaces, extra data."""
@@ -459,17 +449,7 @@ class PoroelasticGelSolver(FieldSolver):
                                  f"(None for p), got {component!r} for {field!r}")
             sub = sub.sub(int(component))
         space, _ = sub.collapse()
-        g = fem.Function(space)
-        bs = space.dofmap.index_map_bs
-        if callable(value):
-            g.interpolate(value)
-        else:
-            val = np.asarray(value, dtype=float).ravel()
-            if val.size not in (1, bs):
-                raise ValueError(f"{self.name}: Dirichlet value for {field!r} must be a number or have "
-                                 f"{bs} components, got {value!r}")
-            g.x.array.reshape(-1, bs)[:] = val
-        g.x.scatter_forward()
+        g = set_function(fem.Function(space), value, f"{self.name}: Dirichlet value for {field!r}")
         facets = tagged_facets(self.facet_tags, tags)
         dofs = fem.locate_dofs_topological((sub, space), self.mesh.topology.dim - 1, facets)
         self._bc_functions.append(g)

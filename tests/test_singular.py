@@ -138,3 +138,28 @@ def test_tags_are_normalised_in_one_place_and_bad_ones_named():
         PoroelasticGelSolver(msh, ft, GelParameters.viscous_units(), no_slip="1")
     with pytest.raises(ValueError, match="^FluidInterface.tags: empty tag list"):
         FluidInterface(tags=[])
+
+
+def test_boundary_values_are_read_in_one_place_and_bad_ones_named():
+    """Dirichlet data and loads of every field go through femtools.functions.set_function: a number,
+    one per component or a callable; another size or NaN is refused with the input's name."""
+    from dolfinx import fem
+
+    msh, ft = rectangle(0.0, 0.0, 1.0, 1.0, 2, 2)
+    V = fem.VectorFunctionSpace(msh, ("Lagrange", 1))
+    from femtools.functions import set_function
+
+    assert np.all(set_function(fem.Function(V), 2.0, "g").x.array == 2.0)
+    g = set_function(fem.Function(V), (1.0, -1.0), "g")
+    assert np.all(g.x.array.reshape(-1, 2) == [1.0, -1.0])
+    g = set_function(fem.Function(V), lambda x: np.vstack([x[0], 0 * x[0]]), "g")
+    assert np.allclose(g.x.array.reshape(-1, 2)[:, 0], V.tabulate_dof_coordinates()[:, 0])
+    with pytest.raises(ValueError, match=r"^g: must be a number, 2 numbers or a callable"):
+        set_function(fem.Function(V), (1.0, 2.0, 3.0), "g")
+    with pytest.raises(FloatingPointError, match="^g: contains NaN or Inf"):
+        set_function(fem.Function(V), (np.nan, 0.0), "g")
+    with pytest.raises(ValueError, match=r"^gel: Dirichlet value for 'u': must be a number, 2 numbers"):
+        PoroelasticGelSolver(msh, ft, GelParameters.viscous_units(), no_slip=[LEFT],
+                             dirichlet=[((RIGHT,), "u", (1.0, 2.0, 3.0))])
+    with pytest.raises(FloatingPointError, match=r"^fluid: velocity_bcs value for tags \(1,\): contains NaN"):
+        StokesSolver(msh, ft, velocity_bcs=[(LEFT, (np.nan, 0.0))], viscosity=1.0)
