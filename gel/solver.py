@@ -343,7 +343,11 @@ class PoroelasticGelSolver(FieldSolver):
         self._add_interface(iname, nodes, {"force": 2, "displacement": 2})
 
     def set_interface_stiffness(self, name: str, stiffness: np.ndarray) -> None:
-        """A Robin condition on cell interface ``name``: the load there becomes ``force + K (u* - u)``.
+        """A Robin condition on cell interface ``name`` (see :meth:`set_interface_stiffnesses`)."""
+        self.set_interface_stiffnesses({name: stiffness})
+
+    def set_interface_stiffnesses(self, stiffnesses: typing.Mapping[str, np.ndarray]) -> None:
+        """Robin conditions on cell interfaces: on each ``name``, the load becomes ``force + K (u* - u)``.
 
         ``stiffness`` K: (2N, 2N), rows and columns ``2 i + c`` (node i of
         ``interface_points(name)``, component c), units of s L0 per unit of
@@ -356,17 +360,19 @@ class PoroelasticGelSolver(FieldSolver):
         ``force`` again.  K is symmetrised; entries on Dirichlet dofs of the
         gel are left out.
         """
-        if name not in self._cell:
-            raise KeyError(f"{self.name}: {name!r} is not a cell interface; cell interfaces: {sorted(self._cell)}")
-        nodes = self._cell[name]["nodes"]
-        K = np.asarray(stiffness, dtype=float)
-        if K.shape != (2 * nodes.size, 2 * nodes.size):
-            raise ValueError(f"{self.name}: the stiffness of {name!r} must be ({2 * nodes.size}, "
-                             f"{2 * nodes.size}) for its {nodes.size} nodes, got {K.shape}")
-        if not np.all(np.isfinite(K)):
-            raise ValueError(f"{self.name}: the stiffness of {name!r} contains NaN or Inf")
-        self._stiffness[name] = (nodes.global_dofs(self.W, parent=True, bcs=self.bcs).ravel(), 0.5 * (K + K.T))
-        # one block per interface: cells do not touch each other
+        for name, stiffness in stiffnesses.items():
+            if name not in self._cell:
+                raise KeyError(f"{self.name}: {name!r} is not a cell interface; cell interfaces: "
+                               f"{sorted(self._cell)}")
+            nodes = self._cell[name]["nodes"]
+            K = np.asarray(stiffness, dtype=float)
+            if K.shape != (2 * nodes.size, 2 * nodes.size):
+                raise ValueError(f"{self.name}: the stiffness of {name!r} must be ({2 * nodes.size}, "
+                                 f"{2 * nodes.size}) for its {nodes.size} nodes, got {K.shape}")
+            if not np.all(np.isfinite(K)):
+                raise ValueError(f"{self.name}: the stiffness of {name!r} contains NaN or Inf")
+            self._stiffness[name] = (nodes.global_dofs(self.W, parent=True, bcs=self.bcs).ravel(), 0.5 * (K + K.T))
+        # one block per interface (cells do not touch each other), handed over once for all of them
         self._newton.set_interface_stiffness(np.hstack([d for d, _ in self._stiffness.values()]),
                                              scipy.linalg.block_diag(*[k for _, k in self._stiffness.values()]))
 

@@ -585,12 +585,14 @@ class Device:
     def _condense_cell(self) -> None:
         """Give the gel the cell's Steklov-Poincare operator on each Gamma2 (``gamma2="schur"``)."""
         t0 = time.perf_counter()
+        stiffnesses = {}
         for g in self.boundaries.cell_interfaces:
             K = self.cell.interface_stiffness(g)
             # the gel's node order (the data's "matching" mapping): P K P^T, P per component
             P = cp.build_mapping("matching", self.cell.interface_points(g), self.gel.interface_points(g)).matrix
             P2 = np.kron(P.toarray(), np.eye(2))
-            self.gel.set_interface_stiffness(g, P2 @ K @ P2.T)
+            stiffnesses[g] = P2 @ K @ P2.T
+        self.gel.set_interface_stiffnesses(stiffnesses)
         self.setup_time += time.perf_counter() - t0
 
     def _fits(self, states: typing.Mapping | None) -> bool:
