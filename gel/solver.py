@@ -54,7 +54,7 @@ Boundary conditions (n is the gel's outward normal everywhere):
   ``force`` (N, 2): NODAL forces ON the gel from the cell (entries of a
   consistent load vector, units of s L0, not a traction density); they enter
   the mixture equation.  Output ``displacement`` (N, 2): nodal u in units of d L0.
-  With an interface stiffness K (``set_interface_stiffness``, a Robin
+  With an interface stiffness K (``set_interface_stiffnesses``, a Robin
   condition) the load is ``force + K (u* - u)``, u* the input
   ``displacement`` (N, 2) (units of d L0; unused without K).
 * ``tractions`` [(tags, value)]: a dead load t on the mixture equation,
@@ -341,10 +341,6 @@ class PoroelasticGelSolver(FieldSolver):
         self._cell[iname] = dict(tags=tags, nodes=nodes, dofs=dofs[keep], rows=nodes.index[keep],
                                  force=np.zeros((nodes.size, 2)), displacement=np.zeros((nodes.size, 2)))
         self._add_interface(iname, nodes, {"force": 2, "displacement": 2})
-
-    def set_interface_stiffness(self, name: str, stiffness: np.ndarray) -> None:
-        """A Robin condition on cell interface ``name`` (see :meth:`set_interface_stiffnesses`)."""
-        self.set_interface_stiffnesses({name: stiffness})
 
     def set_interface_stiffnesses(self, stiffnesses: typing.Mapping[str, np.ndarray]) -> None:
         """Robin conditions on cell interfaces: on each ``name``, the load becomes ``force + K (u* - u)``.
