@@ -426,8 +426,7 @@ class PoroelasticGelSolver(FieldSolver):
         tdim = self.mesh.topology.dim
         self.mesh.topology.create_connectivity(tdim - 1, tdim)
         f2c = self.mesh.topology.connectivity(tdim - 1, tdim)
-        tags = [t for d in self._fluid.values() for t in d["tags"]]
-        facets = tagged_facets(self.facet_tags, tags) if tags else np.empty(0, np.int32)
+        facets = tagged_facets(self.facet_tags, [t for d in self._fluid.values() for t in d["tags"]])
         self._interface_cells = np.unique(np.hstack([f2c.links(f) for f in facets] + [np.empty(0, np.int32)])
                                           ).astype(np.int32)
 
