@@ -94,8 +94,8 @@ def settle_coordinate_element(msh):
     made after it, and a form holding both fails ("Found different Arguments
     with same number and part") on the first run on a machine only.  Meshes
     from gmsh (:func:`model_to_mesh`) are built with the variant; dolfinx's
-    own ``create_rectangle`` etc. are not, so the field solvers settle their
-    mesh before they make any form.
+    own ``create_rectangle`` etc. are not, so the field solvers, the mesh
+    motion and the monolithic solver settle their mesh before they make any form.
     """
     domain = msh.ufl_domain()
     element = domain.ufl_coordinate_element()

@@ -36,7 +36,7 @@ from dolfinx import fem, mesh as dmesh
 from femtools.functions import quadrature_measure
 from femtools.interface import InterfaceNodes
 from femtools.linalg import LinearSolver
-from femtools.mesh import as_tags, tagged_facets
+from femtools.mesh import as_tags, settle_coordinate_element, tagged_facets
 
 __all__ = ["harmonic_residual", "MeshMotion"]
 
@@ -65,7 +65,7 @@ class MeshMotion:
 
     def __init__(self, V: fem.FunctionSpace, facet_tags, moving: typing.Mapping[str, typing.Any],
                  sliding: typing.Sequence = (), name: str = "mesh_motion", quadrature_degree: int = 4):
-        msh = V.mesh
+        msh = settle_coordinate_element(V.mesh)      # before any form (femtools.mesh)
         fdim = msh.topology.dim - 1
         msh.topology.create_connectivity(fdim, msh.topology.dim)
         self.V, self.name = V, name

@@ -60,7 +60,6 @@ from dolfinx import fem
 
 from femtools.continuum import adjugate, cofactor, kinematics, surface_stretch
 from femtools.linalg import NewtonSolver, jacobian_at_rest
-from femtools.mesh import settle_coordinate_element
 from femtools.meshmotion import MeshMotion
 from femtools.serialize import CanonicalOrder, MixedCanonical
 from fluid.solver import StokesSolver
@@ -140,7 +139,6 @@ class MovingStokesSolver(StokesSolver):
         d = float(displacement_scale)
         if not (np.isfinite(d) and d > 0):
             raise ValueError(f"displacement_scale must be finite and > 0, got {displacement_scale!r}")
-        settle_coordinate_element(mesh)          # the mesh motion compiles forms before StokesSolver's
         self._d = fem.Constant(mesh, d)
         self._newton_rtol = float(newton_rtol)
         self._linear_path = bool(linear_path)
