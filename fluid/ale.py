@@ -54,6 +54,7 @@ from __future__ import annotations
 import typing
 
 import numpy as np
+import scipy.sparse
 
 import ufl
 from dolfinx import fem
@@ -164,6 +165,16 @@ class MovingStokesSolver(StokesSolver):
                 self._flux[name] = {"dofs": dofs[keep], "rows": it.nodes.index[keep],
                                     "values": np.zeros((it.nodes.size, 2))}
 
+    @property
+    def linear_path(self) -> bool:
+        """Whether a solve that continues from the previous solution takes one kept-Jacobian step."""
+        return self._linear_path
+
+    @linear_path.setter
+    def linear_path(self, value: bool) -> None:
+        self._linear_path = bool(value)
+        self._solver.linear_path = self._linear_path
+
     # -- hooks of StokesSolver --------------------------------------------------
     def _bulk_residual(self, u, p, v, q, dx=None):
         return ale_bulk_residual(u, p, v, q, self.mu, self.mesh_displacement, self._d, dx or self.dx,
@@ -181,6 +192,37 @@ class MovingStokesSolver(StokesSolver):
                                    J_reference=jacobian_at_rest(F, self.w, [self.mesh_displacement]),
                                    data_coefficients=[c for c in F.coefficients() if c is not self.w])
         return _NewtonAsLinear(self.newton, self._linear_path)
+
+    # -- linearised interface map ----------------------------------------------------
+    def interface_jacobian(self) -> dict[tuple[tuple[str, str], tuple[str, str]], np.ndarray]:
+        """The derivative of the interface outputs with respect to the inputs, linearised at rest.
+
+        As :meth:`fluid.StokesSolver.interface_jacobian` (same keys, shapes and row/column
+        order), on the reference (undeformed) configuration with zero mesh displacement:
+        the operator is the Jacobian at rest (``newton.J_reference``), whatever the current
+        mesh position.  Inputs: ``"robin_normal"``, ``"robin_tangential"`` and
+        ``"normal_flux"`` (nodal loads alpha_n f on the interface velocity rows).  The
+        ``"displacement"`` input (the mesh motion) is left out: its effect is geometric,
+        of the size of the strain times the state, not part of this map.  At zero
+        displacement the solver is linear in the other inputs, so
+        ``out(data + delta) - out(data) = J delta`` to the Newton tolerance (round-off).
+        """
+        return super().interface_jacobian()
+
+    def _jacobian_operator_form(self):
+        return self.newton.J_reference
+
+    def _jacobian_input_keys(self, it) -> list[str]:
+        keys = super()._jacobian_input_keys(it)
+        return keys + (["normal_flux"] if "normal_flux" in self._inputs[it.name] else [])
+
+    def _jacobian_input(self, it, key, data, rows):
+        if key != "normal_flux":
+            return super()._jacobian_input(it, key, data, rows)
+        # the nodal loads alpha_n f, subtracted from the residual: + alpha_n f on the right-hand side
+        on = np.flatnonzero(rows >= 0)
+        return scipy.sparse.csr_matrix((np.full(on.size, float(it.alpha_n.value)), (rows[on], on)),
+                                       shape=(data["rows"].size, rows.size))
 
     # -- data ---------------------------------------------------------------------
     def _set_input(self, interface: str, key: str, values: np.ndarray) -> None:
@@ -205,8 +247,12 @@ class MovingStokesSolver(StokesSolver):
         self.motion.solve()
         dofs = [f["dofs"].ravel() for f in self._flux.values()]
         vals = [float(self._ifaces[k].alpha_n.value) * f["values"][f["rows"]].ravel() for k, f in self._flux.items()]
-        self.newton.set_nodal_loads(np.hstack(dofs).astype(np.int32) if dofs else np.empty(0, np.int32),
-                                    np.hstack(vals) if vals else np.empty(0))
+        dofs = np.hstack(dofs).astype(np.int32) if dofs else np.empty(0, np.int32)
+        vals = np.hstack(vals) if vals else np.empty(0)
+        # a node shared by two interfaces (a corner) takes the sum of their loads: the solver's
+        # ``array[dofs] -= values`` would keep only one of repeated dofs
+        dofs, where = np.unique(dofs, return_inverse=True)
+        self.newton.set_nodal_loads(dofs.astype(np.int32), np.bincount(where, weights=vals, minlength=dofs.size))
         super()._solve()
 
     # -- state (time windows, checkpoints) ------------------------------------------

@@ -45,6 +45,8 @@ import time
 import typing
 
 import numpy as np
+import scipy.sparse
+import scipy.sparse.linalg
 
 from mpi4py import MPI
 from petsc4py import PETSc
@@ -56,7 +58,7 @@ from dolfinx.fem import petsc as fem_petsc
 from femtools.functions import quadrature_measure, set_function
 from femtools.interface import InterfaceMass, InterfaceNodes
 from femtools.mesh import as_tags, connected_components, tagged_facets
-from femtools.linalg import LinearSolver, SolverStats
+from femtools.linalg import LinearSolver, SolverStats, gather_csr, schur_complement
 from femtools.solver import FieldSolver
 from fluid import forms
 
@@ -299,6 +301,9 @@ class StokesSolver(FieldSolver):
         # -- consistent traction: interface mass matrices -------------------------
         self._setup_traction_recovery()
         self._solved = False
+        self._jacobian: dict | None = None          # interface_jacobian(), dropped with the operator
+        self._jacobian_data: dict | None = None     # its operator-independent parts (data matrices)
+        self.interface_jacobian_time = 0.0
         self.timing["setup"] += time.perf_counter() - t0
 
     # =========================================================================
@@ -613,6 +618,170 @@ class StokesSolver(FieldSolver):
                 "traction": nodes.from_function(self._traction(it))}
 
     # =========================================================================
+    # linearised interface map (the coupling's quasi-Newton prior)
+    # =========================================================================
+    def interface_jacobian(self) -> dict[tuple[tuple[str, str], tuple[str, str]], np.ndarray]:
+        """The exact derivative of the interface outputs with respect to the interface inputs.
+
+        Returns ``{((out_interface, out_key), (in_interface, in_key)): J}`` for every pair
+        of interfaces (zero blocks included), ``out_key`` in ``"velocity"``, ``"traction"``
+        (the arrays of :meth:`interface_data`, the traction ON the fluid with its zero
+        components where another Dirichlet condition fixes the velocity) and ``in_key``
+        among the interface's Robin inputs ``"robin_normal"``, ``"robin_tangential"``
+        (as :meth:`set_interface_data` takes them).  ``J`` is dense, shape
+        ``(2 N_out, 2 N_in)``: row ``2 i + c`` is node ``i`` of ``interface_points(out_interface)``,
+        component ``c``; the columns likewise for the input.  The same arrays on every rank.
+
+        The map is affine (the operator does not depend on the data), so
+        ``out(data + delta) - out(data) = J delta`` exactly.  Derivation: the data enter
+        only the right-hand side, b = B g (B the derivative of the Robin form with respect
+        to the data, rows on the interface velocity dofs Gamma).  With k = the free
+        interface velocity dofs plus one pressure dof per connected fluid part (without
+        it the eliminated block of an enclosed part is singular: the pressure constant),
+        (K^-1)_kk = S^-1, S the Schur complement of the operator K (with its Dirichlet
+        conditions) onto k (``femtools.linalg.schur_complement``, one sparse LU), and
+        since b vanishes off Gamma: V_Gamma = (S^-1)_GG B g.  At a solution the bulk
+        residual (the reaction) at an interface row is b - R_rob V_Gamma, R_rob =
+        alpha_n B_N + alpha_t B_T the Robin operator, so the traction is
+        M_kk^-1 (B g - R_rob V_Gamma) on the kept components (``InterfaceMass``) and 0 on
+        the others.  One new compiled form (the data form, also giving R_rob).
+
+        Built lazily and cached until ``update_operator`` or ``set_robin_coefficients``.
+        Interfaces with a Dirichlet part raise ``NotImplementedError``.
+        """
+        if self._jacobian is None:
+            t0 = time.perf_counter()
+            self._jacobian = self._build_interface_jacobian()
+            self.interface_jacobian_time = time.perf_counter() - t0     # seconds of the last build
+        return {key: J.copy() for key, J in self._jacobian.items()}
+
+    # -- hooks (fluid.ale.MovingStokesSolver) -----------------------------------
+    def _jacobian_operator_form(self):
+        """The operator whose Schur complement the Jacobian uses (a compiled bilinear form on W)."""
+        return self._solver.a
+
+    def _jacobian_input_keys(self, it: _Interface) -> list[str]:
+        return [key for key in ("robin_normal", "robin_tangential") if key in self._inputs[it.name]]
+
+    def _jacobian_input(self, it: _Interface, key: str, data: dict, rows: np.ndarray) -> np.ndarray:
+        """d(right-hand side at the kept velocity dofs) / d(input array ``key`` of ``it``): sparse (n_kept, 2N)."""
+        return data[it.name][key]
+
+    # -- construction -------------------------------------------------------------
+    def _jacobian_data_matrices(self, kept_v: np.ndarray) -> dict:
+        """Per interface: B_N and B_T (rows ``kept_v`` of W, columns the interface nodes of V).
+
+        B_N[i, (j, c)] = int (phi_jc.n)(v_i.n) ds, B_T[i, (j, c)] = int phi_jc,tau . v_i,tau ds over
+        the interface: the derivative of the right-hand side of ``forms.robin_residual`` with
+        respect to g_N and g_T (and alpha_n B_N + alpha_t B_T is its operator).  Both come
+        from one compiled form, switched by two Constants.
+        """
+        data = self._jacobian_data
+        if data is not None and np.array_equal(data["rows"], kept_v):
+            return data
+        phi = ufl.TrialFunction(self.V)
+        v, _ = ufl.TestFunctions(self.W)
+        n = ufl.FacetNormal(self.mesh)
+        switch = fem.Constant(self.mesh, PETSc.ScalarType((1.0, 0.0)))
+        phin, vn = ufl.dot(phi, n), ufl.dot(v, n)
+        integrand = switch[0] * phin * vn + switch[1] * ufl.dot(phi - phin * n, v - vn * n)
+        data = {"rows": kept_v.copy()}
+        for it in self._ifaces.values():
+            ds = quadrature_measure("ds", self.mesh, self._single_marker(it), degree=self.quadrature_degree)
+            form = fem.form(integrand * ds(1))
+            cols = it.nodes.global_dofs(self.V).ravel()
+            data[it.name] = {}
+            for key, value in (("robin_normal", (1.0, 0.0)), ("robin_tangential", (0.0, 1.0))):
+                switch.value[:] = value
+                A = fem_petsc.assemble_matrix(form)
+                A.assemble()
+                B = gather_csr(A)
+                A.destroy()
+                data[it.name][key] = B[kept_v][:, cols].tocsr()
+        self._jacobian_data = data
+        return data
+
+    def _schur_pressure_dofs(self) -> np.ndarray:
+        """One free pressure dof (global index in W) per connected fluid part, replicated."""
+        labels, count = connected_components(self.mesh)
+        dofmap = self.W.sub(1).dofmap
+        imap, bs = self.W.dofmap.index_map, self.W.dofmap.index_map_bs
+        n_cells = self.mesh.topology.index_map(self.mesh.topology.dim).size_local
+        local = dofmap.list.array.reshape(-1, dofmap.dof_layout.num_dofs)[:n_cells]
+        fixed = np.zeros((imap.size_local + imap.num_ghosts) * bs, dtype=bool)
+        for bc in self.bcs:
+            fixed[bc.dof_indices()[0]] = True
+        glob = (imap.local_to_global((local // bs).ravel().astype(np.int32)) * bs + local.ravel() % bs)
+        use = (local.ravel() < imap.size_local * bs) & ~fixed[local.ravel()]
+        best = np.full(count, np.iinfo(np.int64).max, dtype=np.int64)
+        np.minimum.at(best, np.repeat(labels[:n_cells], local.shape[1])[use], glob[use].astype(np.int64))
+        if self.comm.size > 1:
+            self.comm.Allreduce(MPI.IN_PLACE, best, op=MPI.MIN)
+        return np.unique(best[best < np.iinfo(np.int64).max])
+
+    def _build_interface_jacobian(self) -> dict:
+        partial = [name for name, it in self._ifaces.items()
+                   if "dirichlet" in (it.spec.normal, it.spec.tangential)]
+        if partial:
+            raise NotImplementedError(
+                f"{self.name}: interface_jacobian() covers Robin interfaces only, but interface(s) "
+                f"{partial} have a Dirichlet part (their 'velocity' input is not linearised)")
+        if not self._ifaces:
+            return {}
+        ifaces = list(self._ifaces.values())
+        # kept set: the free interface velocity dofs (global, in W), then one pressure dof per part
+        vel = {it.name: it.nodes.global_dofs(self.W, parent=True, bcs=self.bcs).ravel() for it in ifaces}
+        kept_v = np.unique(np.hstack(list(vel.values())))
+        kept_v = kept_v[kept_v >= 0]
+        nv = kept_v.size
+        pos = {name: np.where(g >= 0, np.searchsorted(kept_v, np.maximum(g, 0)), -1) for name, g in vel.items()}
+        # the interface block of the inverse operator
+        A = fem_petsc.assemble_matrix(self._jacobian_operator_form(), bcs=self.bcs)
+        A.assemble()
+        K = gather_csr(A)
+        A.destroy()
+        S = schur_complement(K, np.concatenate([kept_v, self._schur_pressure_dofs()]))
+        E = np.linalg.inv(S)[:nv, :nv]
+        # data matrices, the Robin operator on the kept velocity dofs, the inputs' columns
+        data = self._jacobian_data_matrices(kept_v)
+        R_rob = scipy.sparse.csr_matrix((nv, nv))
+        for it in ifaces:
+            on = np.flatnonzero(pos[it.name] >= 0)
+            op = (float(it.alpha_n.value) * data[it.name]["robin_normal"]
+                  + float(it.alpha_t.value) * data[it.name]["robin_tangential"])
+            select = scipy.sparse.csr_matrix((np.ones(on.size), (on, pos[it.name][on])), shape=(op.shape[1], nv))
+            R_rob = R_rob + op @ select
+        columns, B = [], []
+        for it in ifaces:
+            for key in self._jacobian_input_keys(it):
+                columns.append((it.name, key))
+                B.append(scipy.sparse.csr_matrix(self._jacobian_input(it, key, data, pos[it.name])))
+        widths = np.cumsum([0] + [b.shape[1] for b in B])
+        B = scipy.sparse.hstack(B).tocsr()
+        X = np.asarray((B.T @ E.T).T)             # kept interface velocities per unit input
+        R = B.toarray() - R_rob @ X               # reactions at the kept interface velocity dofs
+        out = {}
+        for it in ifaces:
+            p = pos[it.name]
+            on = p >= 0
+            velocity = np.zeros((p.size, B.shape[1]))
+            velocity[on] = X[p[on]]
+            mass = it.traction_mass
+            keep = mass.keep.ravel()
+            if np.any(p[keep] < 0):
+                raise RuntimeError(f"{self.name}: interface {it.name!r}: a traction component is kept "
+                                   f"where the velocity is fixed")
+            traction = np.zeros_like(velocity)
+            if keep.any():
+                lu = scipy.sparse.linalg.splu(mass.matrix[keep][:, keep].tocsc())
+                traction[keep] = lu.solve(np.asfortranarray(R[p[keep]]))
+            for k, col in enumerate(columns):
+                block = slice(widths[k], widths[k + 1])
+                out[((it.name, "velocity"), col)] = np.ascontiguousarray(velocity[:, block])
+                out[((it.name, "traction"), col)] = np.ascontiguousarray(traction[:, block])
+        return out
+
+    # =========================================================================
     # accessors
     # =========================================================================
     @property
@@ -656,6 +825,7 @@ class StokesSolver(FieldSolver):
 
     def update_operator(self) -> None:
         """Re-assemble and re-factorise the Stokes operator (e.g. after changing ``mu.value``)."""
+        self._jacobian = None
         self._solver.update_operator()
 
     def set_robin_coefficients(self, name: str, alpha_n: float | None = None,
@@ -679,6 +849,7 @@ class StokesSolver(FieldSolver):
                 raise ValueError(f"{self.name}: {key} must be finite and >= 0, got {value}")
             const.value = value
             setattr(it.spec, key, value)
+        self._jacobian = None
         self._solver.update_operator()
 
     @property
