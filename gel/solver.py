@@ -66,6 +66,8 @@ Boundary conditions (n is the gel's outward normal everywhere):
 
 Interface inputs that are never set are zero.  All interface arrays follow
 the rank-independent node order of ``femtools.interface.InterfaceNodes``.
+``interface_jacobian()`` returns the input -> output map linearised at rest
+(dense blocks per pair of interfaces, e.g. for a quasi-Newton coupling prior).
 
 Time stepping (``transient=True``)::
 
@@ -84,18 +86,21 @@ import typing
 
 import numpy as np
 import scipy.linalg
+import scipy.sparse
 import scipy.spatial
 
 from mpi4py import MPI
 from petsc4py import PETSc
 
 import ufl
+from ufl.algorithms import expand_derivatives
 from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
 
 from femtools.functions import interpolate, quadrature_measure, set_function, von_mises
 from femtools.interface import InterfaceNodes
-from femtools.linalg import NewtonSolver, assemble_residual_vector, jacobian_at_rest
+from femtools.linalg import DirectSolver, FactorizationError, NewtonSolver, assemble_residual_vector, \
+    jacobian_at_rest, schur_complement
 from femtools.mesh import as_tags, tagged_facets
 from femtools.serialize import CanonicalOrder, MixedCanonical
 from femtools.solver import FieldSolver
@@ -121,6 +126,54 @@ FIELDS = ("w", "u", "p")
 DEFAULT_PETSC_OPTIONS = {"mat_mumps_icntl_8": 8, "mat_mumps_icntl_14": 200}
 _FIELD_INDEX = {name: i for i, name in enumerate(FIELDS)}
 _FIELD_INDEX["v_f"] = 0     # Dirichlet data for v_f are data for w (= v_f where v_s = 0)
+
+
+def _gather_csr_root(A: PETSc.Mat) -> scipy.sparse.csr_matrix | None:
+    """An assembled PETSc matrix as a scipy CSR matrix on rank 0 (None elsewhere), without a COO pass."""
+    indptr, indices, values = A.getValuesCSR()
+    comm = A.getComm().tompi4py()
+    if comm.size > 1:
+        parts = comm.gather((np.diff(indptr), indices, values), root=0)   # row blocks in rank order
+        if comm.rank != 0:
+            return None
+        counts, indices, values = (np.concatenate([p[k] for p in parts]) for k in range(3))
+        indptr = np.concatenate([[0], np.cumsum(counts)])
+    return scipy.sparse.csr_matrix((values, indices, indptr), shape=A.getSize())
+
+
+def _schur_complement(K: scipy.sparse.csr_matrix, keep: np.ndarray) -> np.ndarray:
+    """``femtools.linalg.schur_complement``, with more MUMPS workspace (ICNTL(14)) if it asks for it.
+
+    That function sets no MUMPS controls; its matrix has no options prefix, so ICNTL(14) is passed
+    through the options database for the one call and removed again.
+    """
+    options, key, icntl14 = PETSc.Options(), "mat_mumps_icntl_14", None
+    previous = options.getString(key) if options.hasName(key) else None
+    try:
+        for attempt in range(4):
+            try:
+                return schur_complement(K, keep)
+            except FactorizationError as exc:
+                if attempt == 3 or exc.infog1 not in DirectSolver.WORKSPACE_ERRORS:
+                    raise
+                icntl14 = 2 * (icntl14 or 100) + 100
+                options[key] = icntl14
+    finally:
+        if icntl14 is not None:
+            if previous is None:
+                options.delValue(key)
+            else:
+                options[key] = previous
+
+
+def _max_abs(M) -> np.ndarray:
+    """Largest |entry| of each row of a CSR matrix (column of a CSC matrix); 1 where there is none."""
+    counts = np.diff(M.indptr)
+    out = np.ones(counts.size)
+    nonempty = counts > 0
+    if M.nnz:
+        out[nonempty] = np.maximum.reduceat(np.abs(M.data), M.indptr[:-1][nonempty])
+    return np.where(out > 0, out, 1.0)
 
 
 class PoroelasticGelSolver(FieldSolver):
@@ -218,6 +271,8 @@ class PoroelasticGelSolver(FieldSolver):
         cell_interfaces = dict(cell_interfaces or {})
         self._fluid, self._cell = {}, {}
         self._stiffness: dict[str, tuple[np.ndarray, np.ndarray]] = {}     # Robin operators of cell interfaces
+        self._jacobian_cache: dict | None = None          # interface_jacobian(), at rest
+        self._jacobian_form = None                         # its compiled data form
         clash = set(fluid_interfaces) & set(cell_interfaces)
         if clash:
             raise ValueError(f"interface names used both as fluid and cell interfaces: {sorted(clash)}")
@@ -327,8 +382,10 @@ class PoroelasticGelSolver(FieldSolver):
             psi = ufl.TestFunction(V_vf)
             self._fluid[iname]["flux_form"] = fem.form(lagrangian.normal_flux_load(
                 v_f, u, psi, self.n, self.coefficients, self.ds(tags), self.v_s))
-        return self._forms.fluid_interface_residual(v_f, u, w, z, T, V, self.n, self.coefficients,
-                                                    self.ds(tags), self.v_s)
+        residual = self._forms.fluid_interface_residual(v_f, u, w, z, T, V, self.n, self.coefficients,
+                                                        self.ds(tags), self.v_s)
+        self._fluid[iname]["residual"] = residual          # for interface_jacobian()
+        return residual
 
     def _add_cell_interface(self, iname: str, tags) -> None:
         """Declare a cell interface: the owned mixed-space u dofs that receive its nodal forces."""
@@ -371,6 +428,7 @@ class PoroelasticGelSolver(FieldSolver):
         # one block per interface (cells do not touch each other), handed over once for all of them
         self._newton.set_interface_stiffness(np.hstack([d for d, _ in self._stiffness.values()]),
                                              scipy.linalg.block_diag(*[k for _, k in self._stiffness.values()]))
+        self._jacobian_cache = None
 
     def _add_tractions(self, tractions, z) -> ufl.Form:
         """Dead loads on the mixture equation: - int t . z ds on each entry's facets."""
@@ -478,6 +536,7 @@ class PoroelasticGelSolver(FieldSolver):
             self.history.set_scale(params.displacement_scale)
             self._update_velocity()
         self._newton.invalidate_jacobian()
+        self._jacobian_cache = None
 
     # -- time stepping -------------------------------------------------------
     def _require_transient(self, what: str) -> None:
@@ -497,6 +556,7 @@ class PoroelasticGelSolver(FieldSolver):
         if self.history.set_step(dt, scheme, dt_previous):
             # the Jacobian holds (d/dt) a0: a new factorisation for a new step size or scheme
             self._newton.invalidate_jacobian()
+            self._jacobian_cache = None
         self._update_velocity()
 
     @property
@@ -509,6 +569,7 @@ class PoroelasticGelSolver(FieldSolver):
         self._require_transient("set_steady")
         if self.history.set_steady():
             self._newton.invalidate_jacobian()
+            self._jacobian_cache = None
         self._update_velocity()
 
     def _update_velocity(self) -> None:
@@ -649,6 +710,265 @@ class PoroelasticGelSolver(FieldSolver):
                 out["displacement"] = data["displacement_nodes"].from_array(x, parent=True)
             return out
         return {"displacement": nodes.from_array(x, parent=True)}
+
+    # -- linearised interface map -----------------------------------------
+    def interface_jacobian(self) -> dict[tuple[tuple[str, str], tuple[str, str]], np.ndarray]:
+        """The interface input -> output map linearised at rest, as dense blocks (same on every rank).
+
+        Returns ``{((out_interface, out_key), (in_interface, in_key)): J}`` for
+        every pair of interfaces, J of shape ``(2 N_out, 2 N_in)`` with row
+        ``2 i + c`` = node i of ``interface_points(out_interface)``, component
+        c, and columns likewise for the input: the derivative of
+        ``interface_data(out_interface)[out_key]`` with respect to the input
+        array of ``set_interface_data(in_interface, **{in_key: array})``, at
+        the zero state with zero interface data, i.e. through the kept
+        Jacobian ``J_reference`` (with the Dirichlet conditions and the
+        interface stiffnesses of ``set_interface_stiffnesses``).
+
+        Inputs: fluid interfaces ``traction``, ``velocity``; cell interfaces
+        ``force`` and ``displacement`` (d/du* = d/dforce K; a zero block
+        without a stiffness).  Outputs: fluid interfaces ``traction`` (the
+        identity with respect to its own traction input), ``mixture_velocity``,
+        ``superficial_velocity`` (both (1 - phi_s0) v_f at rest),
+        ``interstitial_velocity`` and with ``kinematics="finite"`` also
+        ``normal_flux`` and ``displacement``; cell interfaces ``displacement``.
+        (``pressure`` is not included.)  Units those of the arrays.
+
+        Computed once (a MUMPS Schur complement of the kept matrix onto the
+        interface dofs, on rank 0, broadcast) and cached until the kept matrix
+        changes (``update_parameters``, ``set_interface_stiffnesses``,
+        ``set_time_step``, ``set_steady``).  The arrays are read-only.
+
+        Time-dependent solvers (a time step set): at rest the history is zero, so
+        v_s = c0 u with c0 = d a0/dt (``RateHistory``); it enters through the kept
+        matrix and the outputs (``interstitial_velocity`` v_f = w + c0 u,
+        ``mixture_velocity`` phi_f w + c0 u, ``superficial_velocity`` phi_f v_f,
+        ``normal_flux`` of (1 - phi_s0) w + c0 u).  The map is then that of one
+        step from a state at rest with a zero history.
+        """
+        if self._jacobian_cache is None:
+            t0 = time.perf_counter()
+            self._jacobian_cache = self._build_interface_jacobian()
+            self.timing["interface_jacobian"] = time.perf_counter() - t0
+        return dict(self._jacobian_cache)
+
+    def _data_derivative_form(self) -> tuple[fem.FormMetaClass, list[tuple[str, str]]]:
+        """dR/d(data) at rest as ONE bilinear form (W test x P2 vector trial), one term per block.
+
+        Block j = (fluid interface, kind) is selected by ``switch[j] = 1`` (a Constant vector):
+        kind ``traction`` (d F_data/dT), ``velocity`` (d F_data/dV) and with finite kinematics
+        ``flux``, the linearised normal-flux load ``gel.lagrangian.normal_flux_load`` tested with the
+        w part of W (read at its w rows).  One compiled form, assembled once per block.
+        """
+        if self._jacobian_form is None:
+            kinds = ("traction", "velocity") + (("flux",) if self.kinematics == "finite" else ())
+            blocks = [(name, kind) for name in self._fluid for kind in kinds]
+            V_vf = self._sub[0][0]
+            trial = ufl.TrialFunction(V_vf)
+            w, _, _ = ufl.TestFunctions(self.W)
+            u = ufl.split(self.state)[1]
+            switch = fem.Constant(self.mesh, np.zeros(len(blocks), dtype=PETSc.ScalarType))
+            rest = {self.state: fem.Function(self.W)}
+            for d in self._fluid.values():
+                rest[d["T"]] = fem.Function(V_vf)
+                rest[d["V"]] = fem.Function(V_vf)
+            if self.transient:
+                rest.update({f: fem.Function(f.function_space) for f in self.history.past})
+            total = 0
+            for j, (name, kind) in enumerate(blocks):
+                d = self._fluid[name]
+                if kind == "flux":
+                    # at rest: linear in v_f (its u dependence multiplies phi_f v_f + phi_s v_s = 0);
+                    # the v_s part (time-dependent) is added from u in _interface_jacobian_blocks
+                    term = lagrangian.normal_flux_load(trial, u, w, self.n, self.coefficients, self.ds(d["tags"]))
+                else:
+                    term = ufl.derivative(d["residual"], d["T" if kind == "traction" else "V"], trial)
+                total += switch[j] * term
+            self._jacobian_form = (fem.form(ufl.replace(expand_derivatives(total), rest)), blocks, switch)
+        return self._jacobian_form
+
+    def _data_derivatives(self) -> dict | None:
+        """``{(interface, kind): CSR}`` of :meth:`_data_derivative_form` on rank 0 (global W rows, global
+        columns of the collapsed w space), None on the other ranks."""
+        form, blocks, switch = self._data_derivative_form()
+        A = fem_petsc.create_matrix(form)
+        out = {}
+        for j, block in enumerate(blocks):
+            value = np.zeros(len(blocks))
+            value[j] = 1.0
+            switch.value = value
+            A.zeroEntries()
+            fem_petsc.assemble_matrix(A, form)
+            A.assemble()
+            out[block] = _gather_csr_root(A)
+        A.destroy()
+        return out if self.mesh.comm.rank == 0 else None
+
+    def _build_interface_jacobian(self) -> dict:
+        """See :meth:`interface_jacobian`: dX_G = -S^-1 dR_G/d(data), S the Schur complement of the
+        kept matrix onto the interface dofs G (the data act on no other row; no other row is read)."""
+        comm = self.mesh.comm
+        # -- collective part: the kept matrix and the data derivatives (on rank 0), the dofs (replicated)
+        newton = self._newton
+        if getattr(newton, "_have_jacobian", False) and newton.uses_reference_jacobian:
+            # the solver holds the kept matrix (J_reference, Dirichlet rows, interface stiffnesses)
+            K = _gather_csr_root(newton.A)
+            stiffnesses = {}
+        else:
+            A = newton.A.duplicate(copy=False)          # its pattern (J's, and the stiffnesses'), zeros
+            fem_petsc.assemble_matrix(A, newton.J_reference, bcs=self.bcs)
+            A.assemble()
+            K = _gather_csr_root(A)
+            A.destroy()
+            stiffnesses = self._stiffness
+        rows, cols, vals = [], [], []
+        for dofs, Ks in stiffnesses.values():
+            use = dofs >= 0
+            r, c = np.meshgrid(dofs[use], dofs[use], indexing="ij")
+            rows.append(r.ravel())
+            cols.append(c.ravel())
+            vals.append(Ks[np.ix_(use, use)].ravel())
+        if rows and K is not None:
+            K = K + scipy.sparse.csr_matrix((np.hstack(vals), (np.hstack(rows), np.hstack(cols))), shape=K.shape)
+        sel = {}            # (interface, field) -> (N, 2) global W dofs of w or u, -1 where fixed
+        for name, d in self._fluid.items():
+            sel[name, "w"] = d["nodes"].global_dofs(self.W, parent=True, bcs=self.bcs)
+            sel[name, "u"] = d["displacement_nodes"].global_dofs(self.W, parent=True, bcs=self.bcs)
+        for name, d in self._cell.items():
+            sel[name, "u"] = d["nodes"].global_dofs(self.W, parent=True, bcs=self.bcs)
+        # with every interface velocity held, the flow's interior block fixes the pressure only up to a
+        # constant (a singular interior block: a garbage Schur complement that MUMPS does not report):
+        # keep one pressure dof of an interface as well (not read, no data on it)
+        interfaces = list(self._fluid.values()) + list(self._cell.values())
+        pressure = (InterfaceNodes(self._sub[2][0], self.facet_tags, interfaces[0]["tags"],
+                                   parent_dofs=self._sub[2][1]).global_dofs(self.W, parent=True, bcs=self.bcs)
+                    if interfaces else np.empty((0, 1), np.int64))
+        pressure = pressure[pressure >= 0][:1]
+        derivative, flux_rows = None, {}
+        if self._fluid:
+            V_vf = self._sub[0][0]
+            columns = {name: d["nodes"].global_dofs(V_vf).ravel() for name, d in self._fluid.items()}
+            derivative = (self._data_derivatives(), columns)
+            if self.kinematics == "finite":
+                flux_rows = {name: d["nodes"].global_dofs(self.W, parent=True).ravel()
+                             for name, d in self._fluid.items()}
+        result, error = None, None
+        if comm.rank == 0:
+            try:
+                result = self._interface_jacobian_blocks(K, sel, pressure, derivative, flux_rows)
+            except Exception as exc:            # every rank raises alike
+                error = exc
+        if comm.size > 1:
+            result, error = comm.bcast((result, error), root=0)
+        if error is not None:
+            raise error
+        for v in result.values():
+            v.setflags(write=False)
+        return result
+
+    def _interface_jacobian_blocks(self, K, sel, pressure, derivative, flux_rows) -> dict:
+        """Rank-local dense algebra of :meth:`_build_interface_jacobian`."""
+        K = K.tocsr()
+        # rows and columns equilibrated (in the paper's units the fluid rows are ~Ca times the network
+        # rows; MUMPS then runs out of workspace): the Schur complement of Dr K Dc is Dr_G S Dc_G
+        dr = 1.0 / _max_abs(K)
+        K.data *= np.repeat(dr, np.diff(K.indptr))
+        dc = 1.0 / _max_abs(K.tocsc())
+        K.data *= dc[K.indices]
+        # G = [flow dofs (w on fluid interfaces, one p), network dofs (u on all interfaces)]
+        w_dofs = [g.ravel() for (_, f), g in sel.items() if f == "w"]
+        u_dofs = [g.ravel() for (_, f), g in sel.items() if f == "u"]
+        gamma_f = np.unique(np.hstack(w_dofs + [pressure, np.empty(0, np.int64)]))
+        gamma_u = np.unique(np.hstack(u_dofs + [np.empty(0, np.int64)]))
+        gamma_f, gamma_u = gamma_f[gamma_f >= 0], gamma_u[gamma_u >= 0]
+        gamma = np.hstack([gamma_f, gamma_u])
+        nf, ng = gamma_f.size, gamma.size
+        order = np.argsort(gamma)
+        S = np.empty((ng, ng))
+        S[np.ix_(order, order)] = _schur_complement(K, gamma[order])      # rows/columns in the order of gamma
+        pos = np.full(K.shape[0], -1, dtype=np.int64)
+        pos[gamma] = np.arange(ng)
+
+        def at(dofs):                         # positions in G of (N, 2) dofs, -1 where fixed
+            d = np.asarray(dofs).ravel()
+            return np.where(d >= 0, pos[np.maximum(d, 0)], -1)
+
+        # dR_G/d(input), (n_G, 2 N_in), scaled by the rows' dr: first the inputs on the flow rows
+        keys, columns = [], []
+        if derivative is not None:
+            B, cmap = derivative
+            for name in self._fluid:
+                for key in ("traction", "velocity"):
+                    keys.append((name, key))
+                    columns.append(B[name, key][gamma][:, cmap[name]].toarray())
+        n_flow_inputs = len(keys)
+        for name in self._cell:
+            g = at(sel[name, "u"])
+            force = np.zeros((ng, g.size))
+            on = g >= 0
+            force[g[on], np.flatnonzero(on)] = -1.0            # the load is subtracted from the residual
+            keys.append((name, "force"))
+            columns.append(force)
+        widths = [c.shape[1] for c in columns]
+        Dm = dr[gamma][:, None] * (np.hstack(columns) if columns else np.zeros((ng, 0)))
+        # X_G = -S^-1 D = -Dc_G S'^-1 (Dr_G D), S' = Dr_G S Dc_G; at rest the steady flow does not see the
+        # network: S' is then block lower-triangular in (flow, network), solved by blocks
+        X = np.zeros_like(Dm)
+        flow_cols = sum(widths[:n_flow_inputs])
+        if nf and np.abs(S[:nf, nf:]).max(initial=0.0) <= 1e-13 * np.abs(S).max(initial=0.0):
+            X[:nf, :flow_cols] = scipy.linalg.lu_solve(scipy.linalg.lu_factor(S[:nf, :nf], check_finite=False),
+                                                       Dm[:nf, :flow_cols], check_finite=False)
+            rhs = Dm[nf:].copy()
+            rhs[:, :flow_cols] -= S[nf:, :nf] @ X[:nf, :flow_cols]
+            X[nf:] = scipy.linalg.lu_solve(scipy.linalg.lu_factor(S[nf:, nf:], check_finite=False), rhs,
+                                           check_finite=False)
+        elif ng:
+            X = scipy.linalg.lu_solve(scipy.linalg.lu_factor(S, check_finite=False), Dm, check_finite=False)
+        X *= -dc[gamma][:, None]
+        response = dict(zip(keys, np.split(X, np.cumsum(widths)[:-1], axis=1) if keys else []))
+        for name in self._cell:
+            force = response[name, "force"]
+            response[name, "displacement"] = (force @ self._stiffness[name][1] if name in self._stiffness
+                                              else np.zeros_like(force))
+        keys = list(response)
+
+        def rows_of(dofs, Xin):               # (2 N, n_in) state rows at dofs (-1: fixed, zero)
+            g = at(dofs)
+            out = Xin[np.maximum(g, 0)]
+            out[g < 0] = 0.0
+            return out
+
+        phi_f = 1.0 - float(self._const["phi_s0"].value)
+        # at rest (zero history) v_s = c0 u at the nodes and in the forms (the same P2 space)
+        c0 = self.history.coefficients[0] if self.transient else 0.0
+        out = {}
+        for name, d in self._fluid.items():
+            flux = None
+            if flux_rows:
+                B, cmap = derivative
+                flux = B[name, "flux"][flux_rows[name]][:, cmap[name]].toarray()   # (1 - phi_s0) (. n, psi n)
+            n_out = 2 * d["nodes"].size
+            for key_in in keys:
+                Xin = response[key_in]
+                w = rows_of(sel[name, "w"], Xin)
+                u = rows_of(sel[name, "u"], Xin)
+                v_s = c0 * u
+                v_f = w + v_s if c0 else w
+                out[(name, "interstitial_velocity"), key_in] = v_f
+                superficial = phi_f * v_f
+                # steady (v_s = 0): the same (read-only) array for both
+                out[(name, "mixture_velocity"), key_in] = phi_f * w + v_s if c0 else superficial
+                out[(name, "superficial_velocity"), key_in] = superficial
+                out[(name, "traction"), key_in] = (np.eye(n_out) if key_in == (name, "traction")
+                                                   else np.zeros((n_out, Xin.shape[1])))
+                if flux is not None:
+                    # j (phi_f v_f + phi_s v_s).n linearised: (1 - phi_s0) w + v_s
+                    out[(name, "normal_flux"), key_in] = flux @ (w + v_s / phi_f)
+                    out[(name, "displacement"), key_in] = u
+        for name in self._cell:
+            for key_in in keys:
+                out[(name, "displacement"), key_in] = rows_of(sel[name, "u"], response[key_in])
+        return out
 
     # -- nodal helpers ---------------------------------------------------
     def _phi_f_nodal(self, scalar_nodes: InterfaceNodes) -> np.ndarray:
