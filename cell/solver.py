@@ -378,6 +378,24 @@ class NeoHookeanCellSolver(FieldSolver):
         out[np.ix_(on, on)] = schur_complement(K, dofs[on])
         return 0.5 * (out + out.T)
 
+    def interface_jacobian(self) -> dict[tuple[tuple[str, str], tuple[str, str]], np.ndarray]:
+        """d(outputs)/d(inputs) on the Dirichlet interfaces, linearised at rest.
+
+        ``{((name, "force"), (name, "displacement")): K, ((name, "displacement"),
+        (name, "displacement")): D}`` per interface, rows and columns ``2 i + c``
+        as in :meth:`interface_stiffness` (K); D is the identity but on the
+        components another condition fixes (there the displacement stays 0).
+        Interfaces do not affect each other (each belongs to its own body, or the
+        blocks between them are left out).
+        """
+        out = {}
+        for name in self._interface_bcs:
+            others = [bc for bc in self.bcs if bc is not self._interface_bcs[name]]
+            free = (self.interface_nodes(name).global_dofs(self.V, bcs=others).ravel() >= 0).astype(float)
+            out[((name, "force"), (name, "displacement"))] = self.interface_stiffness(name)
+            out[((name, "displacement"), (name, "displacement"))] = np.diag(free)
+        return out
+
     # -- load updates (tests, load stepping) ------------------------------------
     def set_dirichlet(self, index: int, value) -> None:
         """Change the value of ``dirichlet[index]`` (constant or callable, units of d)."""
