@@ -485,7 +485,8 @@ class _QuasiNewton(Acceleration):
             prior ``J0 r`` of a cheaper model of the same coupled problem
             (module docstring).  ``r`` is one residual vector of the
             accelerated layout; the result has the same shape.  It replaces
-            the relaxation prior.
+            the relaxation prior.  A surrogate with ``accepts_matrices = True``
+            also takes a matrix of such vectors (columns) in one call.
     """
 
     reuse_windows = 0
@@ -513,6 +514,11 @@ class _QuasiNewton(Acceleration):
                 return np.zeros_like(r)
             if self.surrogate is None:
                 return self.prior_diagonal[:, None] * r
+            if getattr(self.surrogate, "accepts_matrices", False):      # all columns in one call
+                out = np.asarray(self.surrogate.inverse_jacobian(r.copy()), dtype=float)
+                if out.shape != r.shape:
+                    raise ValueError(f"surrogate.inverse_jacobian returned shape {out.shape}, expected {r.shape}")
+                return out
             return np.column_stack([self._prior(r[:, j]) for j in range(r.shape[1])])
         if self.surrogate is not None:
             out = np.asarray(self.surrogate.inverse_jacobian(r.copy()), dtype=float).reshape(-1)

@@ -58,6 +58,7 @@ FILTERS = ("none", "qr1", "qr2")
 PRECONDITIONERS = ("none", "constant", "value", "residual", "residual-sum")
 MEASURES = ("absolute", "relative", "residual-relative")
 ON_MAX_ITERATIONS = ("raise", "return", "continue")
+JACOBIAN_PRIORS = ("none", "linearized")
 
 #: Keys of ``[coupling.acceleration]`` that each acceleration type accepts.
 ACCELERATION_OPTIONS: dict[str, tuple[str, ...]] = {
@@ -65,9 +66,9 @@ ACCELERATION_OPTIONS: dict[str, tuple[str, ...]] = {
     "constant": ("type", "relaxation"),
     "aitken": ("type", "initial_relaxation", "omega_min", "omega_max", "positive_relaxation", "preconditioner"),
     "iqn-ils": ("type", "initial_relaxation", "enforce_initial_relaxation", "max_used_iterations",
-                "time_windows_reused", "relaxation_prior", "filter", "preconditioner"),
+                "time_windows_reused", "relaxation_prior", "jacobian_prior", "filter", "preconditioner"),
     "iqn-imvj": ("type", "initial_relaxation", "enforce_initial_relaxation", "max_used_iterations",
-                 "relaxation_prior", "filter", "preconditioner"),
+                 "relaxation_prior", "jacobian_prior", "filter", "preconditioner"),
 }
 
 
@@ -270,6 +271,11 @@ class AccelerationConfig:
             span (instead of IQN-ILS's plain ``x̃``, i.e. ``ω = 1``).  A table
             data name -> ω; the key ``"*"`` sets every other data (default 1).
             Empty (default): no prior, the classical IQN-ILS/IMVJ.
+        jacobian_prior: IQN: ``"linearized"``: the prior is the Newton step
+            on the coupled map linearised from every participant's
+            ``jacobian()`` (:class:`coupling.linearization.LinearizedPrior`),
+            instead of a relaxation; ``"none"`` (default): no such prior.
+            Excludes ``relaxation_prior``.
         filter: QR filter options (IQN).
         preconditioner: Scaling options (Aitken, IQN).
     """
@@ -284,6 +290,7 @@ class AccelerationConfig:
     time_windows_reused: int = 0
     enforce_initial_relaxation: bool = False
     relaxation_prior: Mapping[str, float] = field(default_factory=dict)
+    jacobian_prior: str = "none"
     filter: FilterConfig = field(default_factory=FilterConfig)
     preconditioner: PreconditionerConfig = field(default_factory=PreconditionerConfig)
 
@@ -309,6 +316,10 @@ class AccelerationConfig:
         object.__setattr__(self, "relaxation_prior",
                            {str(k): _real(where, f"relaxation_prior[{k!r}]", v, positive=True)
                             for k, v in self.relaxation_prior.items()})
+        _choice(where, "jacobian_prior", self.jacobian_prior, JACOBIAN_PRIORS)
+        if self.jacobian_prior != "none" and self.relaxation_prior:
+            raise ValueError(f"{where}: jacobian_prior = {self.jacobian_prior!r} and relaxation_prior are "
+                             f"two priors of the same step; give one of them")
         if not isinstance(self.filter, FilterConfig):
             raise ValueError(f"{where}.filter must be a FilterConfig, got {self.filter!r}")
         if not isinstance(self.preconditioner, PreconditionerConfig):

@@ -54,6 +54,7 @@ from coupling.convergence import ConvergenceMeasure, MeasureValue, build_measure
 from coupling.errors import CouplingDivergedError, CouplingNotConvergedError
 from coupling.extrapolation import lagrange_weights
 from coupling.layout import VectorLayout
+from coupling.linearization import LinearizedPrior
 from coupling.mapping import Mapping as DataMapping
 from coupling.mapping import as_points, build_mapping
 from coupling.parallel import default_comm
@@ -135,6 +136,12 @@ class CouplingScheme:
         self.layout = VectorLayout(self.accelerated,
                                    [self.values[n].shape for n in self.accelerated])
         self.acceleration: Acceleration = build_acceleration(self.config.acceleration, self.layout)
+        if self.config.acceleration.jacobian_prior == "linearized":
+            if surrogate is not None:
+                raise ValueError("coupling.acceleration.jacobian_prior = 'linearized' is itself the prior: "
+                                 "do not pass a surrogate as well")
+            # the participants' linearisations, composed along this scheme's sweep (coupling.linearization)
+            surrogate = LinearizedPrior(self)
         if surrogate is not None:
             if not hasattr(self.acceleration, "surrogate"):
                 raise ValueError(f"a surrogate needs a quasi-Newton acceleration (iqn-ils, iqn-imvj), "
@@ -682,11 +689,14 @@ class CouplingScheme:
                     states[name] = self.participants[name].save_state()
                 except NotImplementedError:
                     states[name] = None
+        surrogate = getattr(self.acceleration, "surrogate", None)
         return {"data": list(self.data), "accelerated": list(self.accelerated),
                 "shapes": {n: list(v.shape) for n, v in self.values.items()},
                 "values": {n: v.copy() for n, v in self.values.items()},
                 "acceleration": copy.deepcopy(self.acceleration.state_dict()),
-                "participants": states}
+                "participants": states,
+                # the linearized prior's factorisation: the same interface operator, so the same prior
+                "prior": surrogate.state() if isinstance(surrogate, LinearizedPrior) else None}
 
     def load_reuse_state(self, state: Mapping[str, Any], *, values: bool = True,
                          acceleration: bool = True, participants: bool = True,
@@ -727,6 +737,10 @@ class CouplingScheme:
             acc = copy.deepcopy(state["acceleration"])
             _scale_acceleration_state(acc, self.layout, factors)
             self.acceleration.load_state_dict(acc)
+            surrogate = getattr(self.acceleration, "surrogate", None)
+            if isinstance(surrogate, LinearizedPrior) and state.get("prior") is not None \
+                    and all(f == 1.0 for f in factors.values()):
+                surrogate.load_state(state["prior"])
         if participants:
             for name, pstate in (state.get("participants") or {}).items():
                 if name not in self.participants:

@@ -76,6 +76,10 @@ class AffineParticipant(Participant):
             out[written] = value[:, None]
         return out
 
+    def jacobian(self) -> dict[tuple[str, str], np.ndarray]:
+        """``d outputs[w] / d inputs[r] = M[w, r]`` (exact: the participant is affine)."""
+        return {k: m.copy() for k, m in self.matrices.items()}
+
 
 @dataclass(frozen=True)
 class BarEnd:
@@ -145,6 +149,20 @@ class ElasticBar(Participant):
                 out[end.write] = np.array([[k * c1 - f * xi]])
             elif end.kind == "neumann":
                 out[end.write] = np.array([[c0 + c1 * xi - f * xi * xi / (2.0 * k)]])
+        return out
+
+    def jacobian(self) -> dict[tuple[str, str], np.ndarray]:
+        """d(written end value)/d(read end value): the bar is affine, so one unit difference is exact."""
+        ends = [e for e in (self.left, self.right) if e.kind != "fixed"]
+        zero = {e.read: np.zeros((1, 1)) for e in ends}
+        solves = self.solves
+        base = self.solve(zero)
+        out = {}
+        for e in ends:
+            moved = self.solve({**zero, e.read: np.ones((1, 1))})
+            for w in base:
+                out[(w, e.read)] = moved[w] - base[w]
+        self.solves = solves          # these are not coupling solves
         return out
 
 

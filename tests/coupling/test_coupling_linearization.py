@@ -1,0 +1,125 @@
+"""The linearized quasi-Newton prior (coupling.linearization) on the coupling toy problems.
+
+Reference: the toys' closed-form answers.  Every toy participant is affine and
+reports its exact derivatives, so the composed A is the fixed-point map's exact
+Jacobian and the prior's first step is the Newton step: it lands on the fixed
+point whatever the spectrum of A (plain iteration diverges on every toy here).
+The convergence measures then need one more sweep (parallel: 2 iterations),
+or two in a serial scheme, whose forward data are measured by their change
+(the first sweep's forward data were computed from the initial guess).
+"""
+
+import numpy as np
+import pytest
+
+from coupling import Participant, build_scheme
+from coupling.linearization import coupled_jacobian
+from coupling.toys import affine_pair_problem, chain_problem, two_bar_problem
+
+
+def _config(scheme, problem, acceleration="iqn-ils", **extra):
+    return {"scheme": f"{scheme}-implicit", "order": list(problem.order), "max_iterations": 50,
+            "convergence": [{"data": "*", "type": "relative", "limit": 1e-10}],
+            "acceleration": {"type": acceleration, "initial_relaxation": 0.1, "jacobian_prior": "linearized",
+                             "filter": {"type": "qr2", "limit": 1e-8}, **extra}}
+
+
+PROBLEMS = [affine_pair_problem(), two_bar_problem(10.0), two_bar_problem(100.0), chain_problem()]
+
+
+@pytest.mark.parametrize("scheme", ["serial", "parallel"])
+@pytest.mark.parametrize("acceleration", ["iqn-ils", "iqn-imvj"])
+@pytest.mark.parametrize("problem", PROBLEMS, ids=lambda p: p.name)
+def test_exact_linearization_converges_in_one_newton_step(problem, scheme, acceleration):
+    participants, data = problem.build()
+    sch = build_scheme(_config(scheme, problem, acceleration), participants, data)
+    result = sch.solve()
+    assert result.converged
+    assert result.iterations == (3 if scheme == "serial" else 2)
+    second = result.windows[0].records[1]          # the sweep after the Newton step
+    for name in sch.accelerated:
+        assert second.residual_norms[name] <= 1e-12 * max(second.value_norms[name], 1.0)
+    for name, exact in problem.exact.items():
+        assert np.allclose(sch.latest(name), exact, rtol=1e-9, atol=1e-12 * np.abs(exact).max())
+
+
+def test_composed_jacobian_is_the_serial_map():
+    """A from the participants equals the fixed-point operator the toy is built with (T)."""
+    problem = affine_pair_problem(n=6)
+    participants, data = problem.build()
+    sch = build_scheme(_config("serial", problem), participants, data)
+    assert sch.accelerated == ("Gamma/y",)
+    assert np.allclose(coupled_jacobian(sch), problem.extra["T"], rtol=0, atol=1e-12)
+
+
+def test_missing_or_wrong_jacobian_is_refused():
+    problem = affine_pair_problem(n=4)
+    participants, data = problem.build()
+    participants[1].jacobian = lambda: {("Gamma/y", "Gamma/z"): np.zeros((3, 4))}
+    sch = build_scheme(_config("serial", problem), participants, data)
+    with pytest.raises(ValueError, match=r"shape \(3, 4\), expected \(4, 4\)"):
+        sch.solve()
+    participants, data = problem.build()
+    participants[1].jacobian = lambda: {("Gamma/y", "Gamma/y"): np.zeros((4, 4))}
+    with pytest.raises(ValueError, match="does not read"):
+        build_scheme(_config("serial", problem), participants, data).solve()
+    participants, data = problem.build()
+
+    class Opaque(Participant):          # solves, but cannot linearise itself
+        name = participants[0].name
+
+        def interface_points(self, mesh_name):
+            return participants[0].interface_points(mesh_name)
+
+        def solve(self, inputs):
+            return participants[0].solve(inputs)
+
+    with pytest.raises(TypeError, match="has no jacobian"):
+        build_scheme(_config("serial", problem), [Opaque(), participants[1]], data).solve()
+
+
+def test_jacobian_prior_configuration_is_checked():
+    problem = affine_pair_problem(n=4)
+    participants, data = problem.build()
+    with pytest.raises(ValueError, match="jacobian_prior"):
+        build_scheme(_config("serial", problem, relaxation_prior={"*": 0.5}), participants, data)
+    with pytest.raises(ValueError, match="allowed values: 'none', 'linearized'"):
+        cfg = _config("serial", problem)
+        cfg["acceleration"]["jacobian_prior"] = "exact"
+        build_scheme(cfg, participants, data)
+    with pytest.raises(ValueError, match="jacobian_prior"):
+        cfg = _config("serial", problem, "aitken")
+        cfg["acceleration"] = {"type": "aitken", "jacobian_prior": "linearized"}
+        build_scheme(cfg, participants, data)
+
+
+def test_serial_prior_through_a_shorter_inner_vector():
+    """A reads x1, x2 (n each) and writes y (n); B reads y and writes x1, x2: z = y is half of x.
+
+    The prior then factorises I - Z C (n) instead of I - A (2n); the Newton step is still exact.
+    """
+    from coupling import Data
+    from coupling.linearization import LinearizedPrior
+    from coupling.toys import AffineParticipant
+    n = 5
+    rng = np.random.default_rng(3)
+    m1, m2, b1, b2 = (rng.standard_normal((n, n)) for _ in range(4))
+    a = AffineParticipant("A", "G", n, {("G/y", "G/x1"): 2 * m1, ("G/y", "G/x2"): m2}, {"G/y": rng.standard_normal(n)})
+    b = AffineParticipant("B", "G", n, {("G/x1", "G/y"): b1, ("G/x2", "G/y"): 3 * b2},
+                          {"G/x1": rng.standard_normal(n), "G/x2": rng.standard_normal(n)})
+    data = [Data("G/y", "G", 1, "A", ("B",)), Data("G/x1", "G", 1, "B", ("A",)), Data("G/x2", "G", 1, "B", ("A",))]
+    config = {"scheme": "serial-implicit", "order": ["A", "B"], "max_iterations": 20,
+              "convergence": [{"data": "*", "type": "relative", "limit": 1e-10}],
+              "acceleration": {"type": "iqn-ils", "jacobian_prior": "linearized"}}
+    sch = build_scheme(config, [a, b], data)
+    result = sch.solve()
+    prior = sch.acceleration.surrogate
+    assert isinstance(prior, LinearizedPrior) and "C" in prior.state()          # the Woodbury form
+    assert prior.state()["lu"][0].shape == (n, n)
+    assert np.allclose(prior.jacobian, coupled_jacobian(sch), rtol=0, atol=1e-12)
+    # the fixed point in closed form: x = T x + c with T = [[b1], [3 b2]] [2 m1, m2]
+    T = np.vstack([b1, 3 * b2]) @ np.hstack([2 * m1, m2])
+    c = np.vstack([b1, 3 * b2]) @ a.offsets["G/y"] + np.hstack([b.offsets["G/x1"], b.offsets["G/x2"]])
+    x = np.linalg.solve(np.eye(2 * n) - T, c)
+    assert result.converged and result.iterations == 3
+    assert np.allclose(np.hstack([sch.latest("G/x1")[:, 0], sch.latest("G/x2")[:, 0]]), x, rtol=1e-9, atol=1e-12)
