@@ -385,6 +385,10 @@ class NeoHookeanCellSolver(FieldSolver):
         (name, "displacement")): D}`` per interface, rows and columns ``2 i + c``
         as in :meth:`interface_stiffness` (K); D is the identity but on the
         components another condition fixes (there the displacement stays 0).
+        K's rows of those components are zero: the force there is that
+        condition's reaction, which does not depend on the interface data
+        through the cell alone (a neighbour that holds the same condition,
+        as the gel on a symmetry line, ignores it).
         Interfaces do not affect each other (each belongs to its own body, or the
         blocks between them are left out).
         """

@@ -396,3 +396,29 @@ def test_cell_interface_stiffness_is_its_dirichlet_to_neumann_map():
     for shift in ([1.0, 0.0], [0.0, 1.0]):
         t = np.tile(shift, K.shape[0] // 2)
         assert np.abs(K @ t).max() <= 1e-10 * np.abs(K).max()
+
+
+def test_cell_interface_jacobian_is_its_linear_response():
+    """interface_jacobian(): d(force)/d(displacement) is K, and d(displacement)/d(displacement) the
+    identity but where a symmetry condition holds the component at 0 (the solver's own outputs,
+    linear regime, strains 1e-12)."""
+    msh, ft = meshes.block(1.0, 1.0, 6)
+    tags = tuple(int(t) for t in np.unique(np.hstack(COMM.allgather(np.unique(ft.values)))))
+    cell = NeoHookeanCellSolver(msh, ft, mu=1.0, lmbda=1.5, displacement_scale=1e-12,
+                                interfaces={"boundary": tags[1:]}, symmetry=[(tags[:1], 1)], newton_rtol=1e-13)
+    J = cell.interface_jacobian()
+    assert set(J) == {(("boundary", "force"), ("boundary", "displacement")),
+                      (("boundary", "displacement"), ("boundary", "displacement"))}
+    assert np.array_equal(J[("boundary", "force"), ("boundary", "displacement")], cell.interface_stiffness("boundary"))
+    g = np.random.default_rng(5).standard_normal((cell.interface_points("boundary").shape[0], 2))
+    cell.set_interface_data("boundary", displacement=g)
+    cell.solve()
+    out = cell.interface_data("boundary")
+    held = np.diag(J[("boundary", "displacement"), ("boundary", "displacement")]) == 0
+    assert held.any() and not held.all()          # the symmetry line fixes some components
+    for key in ("force", "displacement"):
+        predicted = J[("boundary", key), ("boundary", "displacement")] @ g.ravel()
+        # the held components' force is the symmetry condition's reaction: left out (docstring)
+        free = out[key].ravel()[~held]
+        assert np.linalg.norm(predicted[~held] - free) <= 1e-9 * np.linalg.norm(free), key
+    assert np.all(out["displacement"].ravel()[held] == 0)
