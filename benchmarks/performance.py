@@ -17,7 +17,8 @@ one more iteration costs), the peak memory (resident set of
 the largest process), the monolithic Newton solve's time and the ratio of the
 two, and the cost exponent fitted to solves' total ~ dofs^k.  Then the
 iteration table of the baseline and the stiffness extremes (cell moduli x10,
-gel moduli x0.1) at the default mesh.
+gel moduli x0.1) at the default mesh, each with the default prior and with the
+linearized prior (``jacobian_prior = "linearized"``, and its setup time).
 
 Times are wall-clock seconds on whatever machine runs this: they are printed,
 never asserted (tests assert physics, not speed).  On a shared machine repeat
@@ -56,10 +57,10 @@ def _dofs(space) -> int:
     return space.dofmap.index_map.size_global * space.dofmap.index_map_bs
 
 
-def measure_partitioned(p, comm) -> dict:
+def measure_partitioned(p, comm, jacobian_prior: str = "none") -> dict:
     from gelcell.device import Device
     from gelcell.runner import partitioned_config
-    config = partitioned_config(p)
+    config = partitioned_config(p, coupling={"acceleration": {"jacobian_prior": jacobian_prior}})
     t0 = time.perf_counter()
     device = Device(p, comm)
     t1 = time.perf_counter()
@@ -74,7 +75,8 @@ def measure_partitioned(p, comm) -> dict:
     return {"kind": "partitioned", "ranks": comm.size, "dofs": dofs, "iterations": result.iterations,
             "converged": result.converged, "setup": t1 - t0, "solves_total": t2 - t1,
             "field_time": dict(result.timing), "factor_time": factor, "steady_iteration": steady_iteration(result),
-            "gel_linear_steps": gel.get("linear_steps"), "gel_newton_iterations": gel["newton_iterations"]}
+            "gel_linear_steps": gel.get("linear_steps"), "gel_newton_iterations": gel["newton_iterations"],
+            "prior_setup": getattr(device.scheme.acceleration.surrogate, "setup_time", 0.0)}
 
 
 def steady_iteration(result) -> dict:
@@ -105,7 +107,8 @@ def child(args) -> None:
     from mpi4py import MPI
     comm = MPI.COMM_WORLD
     p = _params(args.mesh_size, args.cell_moduli, args.gel_moduli)
-    out = measure_partitioned(p, comm) if args.child == "partitioned" else measure_monolithic(p, comm)
+    out = (measure_partitioned(p, comm, args.jacobian_prior) if args.child == "partitioned"
+           else measure_monolithic(p, comm))
     # peak resident set of this process (kilobytes on Linux), the largest over the ranks
     out["peak_mib"] = comm.allreduce(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, op=MPI.MAX)
     if comm.rank == 0:
@@ -115,7 +118,7 @@ def child(args) -> None:
 # -- the driver ------------------------------------------------------------------------------------
 def run_child(kind: str, mesh_size: float, ranks: int, timeout: float, **moduli) -> dict:
     cmd = [sys.executable, os.path.abspath(__file__), "--child", kind, "--mesh-size", str(mesh_size)]
-    for key, value in moduli.items():
+    for key, value in moduli.items():          # moduli, and the partitioned run's jacobian_prior
         cmd += [f"--{key.replace('_', '-')}", str(value)]
     if ranks > 1:
         mpirun = shutil.which("mpirun") or "mpirun"
@@ -209,15 +212,16 @@ def print_tables(sizes_rows: list[dict], iteration_rows: list[dict], ranks: int)
                               [r["monolithic"]["solve"] for r in mono]) if len(mono) >= 2 else float("nan")
         print(f"\nfitted cost exponent (time ~ dofs^k, dofs {min(dofs)} -> {max(dofs)}): partitioned solves' total "
               f"k = {k_part:.2f}, monolithic Newton solve k = {_f(k_mono)}")
-    print("\nIterations to 1e-10 at the default mesh (serial IQN-ILS)")
-    print("\n| case | iterations | solves' total | per iteration |")
-    print("|---|---:|---:|---:|")
+    print("\nIterations to 1e-10 at the default mesh (serial IQN-ILS; prior: the relaxation prior or none,"
+          " or the linearized prior, coupling.acceleration.jacobian_prior)")
+    print("\n| case | prior | iterations | solves' total | of which the prior's setup | per iteration |")
+    print("|---|---|---:|---:|---:|---:|")
     for r in iteration_rows:
         if "error" in r:
-            print(f"| {r['case']} | {r['error']} | | |")
+            print(f"| {r['case']} | {r['prior']} | {r['error']} | | | |")
             continue
-        print(f"| {r['case']} | {r['iterations']} | {r['solves_total']:.2f} | "
-              f"{1e3 * r['solves_total'] / r['iterations']:.0f} ms |")
+        print(f"| {r['case']} | {r['prior']} | {r['iterations']} | {r['solves_total']:.2f} | "
+              f"{r.get('prior_setup', 0.0):.2f} | {1e3 * r['solves_total'] / r['iterations']:.0f} ms |")
 
 
 # -- fixed costs of `gelcell run shear` ------------------------------------------------------------
@@ -282,6 +286,7 @@ def main(argv=None) -> int:
     parser.add_argument("--mesh-size", type=float, default=1.0, help=argparse.SUPPRESS)
     parser.add_argument("--cell-moduli", type=float, help=argparse.SUPPRESS)
     parser.add_argument("--gel-moduli", type=float, help=argparse.SUPPRESS)
+    parser.add_argument("--jacobian-prior", choices=("none", "linearized"), default="none", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child:
         child(args)
@@ -301,8 +306,9 @@ def main(argv=None) -> int:
         print(f"mesh size {size:g}: done", file=sys.stderr, flush=True)
     if not args.no_iterations:
         for name, moduli in STIFFNESS_CASES:
-            r = run_child("partitioned", 1.0, args.ranks, args.timeout, **moduli)
-            iteration_rows.append({"case": name, **r})
+            for prior in ("none", "linearized"):
+                r = run_child("partitioned", 1.0, args.ranks, args.timeout, jacobian_prior=prior, **moduli)
+                iteration_rows.append({"case": name, "prior": prior, **r})
     fixed = measure_fixed_costs(args.fixed_costs, args.timeout) if args.fixed_costs > 0 and args.ranks == 1 else None
     print_tables(sizes_rows, iteration_rows, args.ranks)
     if fixed is not None:
