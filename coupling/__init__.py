@@ -29,6 +29,7 @@ from coupling.convergence import (AbsoluteConvergence, ConvergenceMeasure, Relat
 from coupling.errors import CouplingDivergedError, CouplingError, CouplingNotConvergedError
 from coupling.extrapolation import lagrange_weights
 from coupling.layout import VectorLayout
+from coupling.linearization import LinearizedPrior, coupled_jacobian
 from coupling.mapping import Mapping, build_mapping, order_along_curve
 from coupling.participant import Data, Participant
 from coupling.records import (CouplingResult, IterationRecord, RecordedSolve, Recording,
@@ -49,5 +50,5 @@ __all__ = [
     "ResidualRelativeConvergence", "build_measure",
     "CouplingError", "CouplingDivergedError", "CouplingNotConvergedError",
     "CouplingResult", "IterationRecord", "WindowRecord", "Recording", "RecordedSolve",
-    "ReplayResult", "VectorLayout", "Mapping", "build_mapping", "order_along_curve", "lagrange_weights",
+    "ReplayResult", "VectorLayout", "LinearizedPrior", "coupled_jacobian", "Mapping", "build_mapping", "order_along_curve", "lagrange_weights",
 ]

@@ -34,6 +34,7 @@ zero blocks are never multiplied.
 from __future__ import annotations
 
 import time
+import warnings
 from typing import Any, Mapping
 
 import numpy as np
@@ -201,12 +202,23 @@ class LinearizedPrior:
             Z = _dense(scheme, dz, z, names)
             K = np.eye(Z.shape[0]) - Z @ C
             self._check(C, Z)
-            self._factors = {"C": C, "Z": Z, "lu": sla.lu_factor(K, check_finite=False)}
+            self._factors = {"C": C, "Z": Z, "lu": self._lu(K)}
         else:
             A = coupled_jacobian(scheme)
             self._check(A)
-            self._factors = {"A": A, "lu": sla.lu_factor(np.eye(A.shape[0]) - A, check_finite=False)}
+            self._factors = {"A": A, "lu": self._lu(np.eye(A.shape[0]) - A)}
         self.setup_time += time.perf_counter() - t0
+
+    @staticmethod
+    def _lu(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore")          # a singular matrix is reported below, by name
+            lu = sla.lu_factor(M, check_finite=False)
+        pivots = np.abs(np.diag(lu[0]))
+        if pivots.size and not pivots.min() > 1e-13 * max(pivots.max(), 1.0):
+            raise ValueError("linearized prior: I - A is singular (the linearised coupled map has an eigenvalue 1, "
+                             "so its fixed point is not unique); use another prior")
+        return lu
 
     @staticmethod
     def _check(*arrays: np.ndarray) -> None:

@@ -123,3 +123,11 @@ def test_serial_prior_through_a_shorter_inner_vector():
     x = np.linalg.solve(np.eye(2 * n) - T, c)
     assert result.converged and result.iterations == 3
     assert np.allclose(np.hstack([sch.latest("G/x1")[:, 0], sch.latest("G/x2")[:, 0]]), x, rtol=1e-9, atol=1e-12)
+
+
+def test_a_map_without_a_unique_fixed_point_is_refused():
+    """A Jacobian with an eigenvalue 1 (I - A singular) stops with a message, not with NaNs."""
+    problem = affine_pair_problem(n=4, eigenvalues=[1.0, -0.5, -1.0, -2.0])
+    participants, data = problem.build()
+    with pytest.raises(ValueError, match="I - A is singular"):
+        build_scheme(_config("serial", problem), participants, data).solve()
