@@ -198,6 +198,18 @@ def _check_before_meshing(cases: typing.Iterable[CaseParameters], out: str, part
     check_output_target(out, MPI.COMM_WORLD, partial)
 
 
+def _with_solver_options(params: CaseParameters, args: argparse.Namespace) -> CaseParameters:
+    """``--jacobian-prior`` into the case's ``[coupling.acceleration]`` table (it overrides the file's)."""
+    prior = getattr(args, "jacobian_prior", None)
+    if prior is None:
+        return params
+    if args.monolithic:
+        raise ParameterError("--jacobian-prior is an option of the partitioned coupling, not of --monolithic")
+    coupling = dict(params.coupling)
+    coupling["acceleration"] = {**dict(coupling.get("acceleration", {})), "jacobian_prior": prior}
+    return params.replace(coupling=coupling)
+
+
 def cmd_mesh(args: argparse.Namespace) -> int:
     params = case_parameters_from_args(args)         # validated before any meshing
     _check_before_meshing([params], args.out)
@@ -252,6 +264,11 @@ def _add_solver_arguments(p: argparse.ArgumentParser) -> None:
                         "carries the cell's interface stiffness (a Robin condition with the cell's Steklov-Poincare "
                         "operator); dirichlet: plain Dirichlet-Neumann; robin: the cell takes the gel's force plus "
                         "springs towards its displacement (Robin-Neumann)")
+    g.add_argument("--jacobian-prior", choices=("none", "linearized"), default=None,
+                   help="IQN's prior: linearized = the Newton step on the coupled map linearised at rest from the "
+                        "three solvers' interface Jacobians (4-5 iterations instead of 14-18, but ~1.3 s to set "
+                        "up at the default mesh: slower for one steady run; docs/coupling.md); default: none, "
+                        "or the case file's [coupling.acceleration] jacobian_prior")
     g.add_argument("--monolithic", action="store_true",
                    help="solve the monolithic reference (all fields in one Newton system) instead")
     g.add_argument("--quiet", action="store_true", help="no per-iteration coupling progress")
@@ -301,7 +318,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         return _cmd_resume(args)
     if args.out is None:
         raise ParameterError("give the output directory: --out DIR")
-    params = case_parameters_from_args(args)         # validated before any meshing
+    params = _with_solver_options(case_parameters_from_args(args), args)   # validated before any meshing
     settings = time_settings_from_args(args, params)
     if settings.transient:
         if args.compare_no_cell:
@@ -391,7 +408,7 @@ def sweep_parameters(params: CaseParameters, name: str, value: float) -> CasePar
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    base = case_parameters_from_args(args)
+    base = _with_solver_options(case_parameters_from_args(args), args)
     cases = [sweep_parameters(base, args.param, v) for v in args.values]   # validate all first
     from gelcell.runner import partitioned_config
     from gelcell.sweep import check_distinct, run_sweep

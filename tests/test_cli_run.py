@@ -94,3 +94,18 @@ def test_bad_parameters_stop_before_meshing(tmp_path, args, name):
     assert name in proc.stderr and "allowed" in proc.stderr
     assert "Traceback" not in proc.stderr
     assert not out.exists()
+
+
+def test_run_with_the_linearized_prior(tmp_path):
+    """--jacobian-prior linearized: the same case in a few iterations (docs/coupling.md: 4-5 at any
+    stiffness); with --monolithic or a non-IQN acceleration it is refused before meshing."""
+    out = tmp_path / "prior"
+    gelcell("run", "normal", "--mesh-size", "3", "--jacobian-prior", "linearized", "--no-figures", "--quiet",
+            "--out", str(out))
+    s = json.loads((out / "summary.json").read_text())
+    assert s["coupling"]["converged"] and s["coupling"]["iterations"] <= 6
+    for extra in (["--monolithic"], ["--acceleration", "aitken"]):
+        bad = tmp_path / "bad"
+        proc = gelcell("run", "normal", "--jacobian-prior", "linearized", *extra, "--out", str(bad), check=False)
+        assert proc.returncode == 2 and "jacobian" in proc.stderr.replace("-", "_"), proc.stderr
+        assert "Traceback" not in proc.stderr and not bad.exists()
