@@ -128,6 +128,13 @@ def study_methods(quick: bool = False) -> list[Method]:
                        gamma2="dirichlet"),
                 Method("iqn-ils robin gamma2", "serial", iqn, gamma2="robin"),
                 Method("aitken robin gamma2", "serial", aitken, gamma2="robin")]
+    # the linearized prior: the Newton step on the map linearised from the solvers' interface Jacobians
+    # (docs/coupling.md), on both schemes and on plain Dirichlet-Neumann (instead of its relaxation prior)
+    linearized = {**iqn, "jacobian_prior": "linearized"}
+    methods += [Method("iqn-ils linearized prior", "serial", linearized),
+                Method("iqn-ils linearized prior", "parallel", linearized),
+                Method("iqn-ils dirichlet gamma2 linearized prior", "serial", {**linearized, "relaxation_prior": {}},
+                       gamma2="dirichlet")]
     # the preconditioner: residual-sum weights drift every iteration (the default is value scaling)
     methods.append(Method("iqn-ils residual-sum", "serial", {**iqn, "preconditioner": {"type": "residual-sum"}}))
     # the partitioning variant: the Robin coefficient of the fluid's mass condition on Gamma1/Gamma3
