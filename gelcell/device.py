@@ -680,8 +680,9 @@ class Device:
         if exact and self.gamma2 == "robin":
             raise ValueError("coupling.acceleration.jacobian_prior = 'linearized' needs gamma2 'dirichlet' or "
                              "'schur' (the cell's Jacobian is not built for the Robin-Neumann split)")
-        steady_fluid = not (self.transient or self.kinematics != "finite")
-        for solver, default in ((self.gel, True), (self.cell, True), (self.fluid, steady_fluid)):
+        # as built: gel and cell on the linear path, the moving fluid in steady runs only (the
+        # fixed-mesh StokesSolver is linear and has no such path)
+        for solver, default in ((self.gel, True), (self.cell, True), (self.fluid, not self.transient)):
             if solver is not None and hasattr(solver, "linear_path"):
                 solver.linear_path = default and not exact
 
