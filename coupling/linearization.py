@@ -193,7 +193,9 @@ class LinearizedPrior:
         scheme = self._scheme
         names = list(scheme.layout.names)
         z = _inner_variables(scheme) if scheme.serial and len(scheme.order) > 1 else None
-        if z is not None and sum(_size(scheme, n) for n in z) < scheme.layout.size:
+        inner = sum(_size(scheme, n) for n in z) if z is not None else scheme.layout.size
+        self._check_memory(scheme.layout.size, min(inner, scheme.layout.size))
+        if z is not None and inner < scheme.layout.size:
             first = _sweep(scheme, [scheme.order[0]], _identity(scheme, names))
             dz = {n: first[n] if n in scheme._writes[scheme.order[0]] else {n: sp.identity(_size(scheme, n))}
                   for n in z}
@@ -219,6 +221,20 @@ class LinearizedPrior:
             raise ValueError("linearized prior: I - A is singular (the linearised coupled map has an eigenvalue 1, "
                              "so its fixed point is not unique); use another prior")
         return lu
+
+    @staticmethod
+    def _check_memory(n: int, m: int) -> None:
+        """Refuse before allocating when the dense system would not fit (Linux: MemAvailable)."""
+        need = 8.0 * (2 * n * m + 3 * m * m) if m < n else 8.0 * 3 * n * n      # C, Z, I - Z C, LU (or A)
+        try:
+            with open("/proc/meminfo") as fh:
+                available = next(float(line.split()[1]) * 1024 for line in fh if line.startswith("MemAvailable:"))
+        except (OSError, StopIteration, ValueError):
+            return
+        if need > 0.5 * available:
+            raise MemoryError(f"linearized prior: its dense interface system ({n} unknowns, inner {m}) needs about "
+                              f"{need / 2**30:.1f} GiB, more than half of the {available / 2**30:.1f} GiB available; "
+                              f"use coupling.acceleration.jacobian_prior = 'none' at this size")
 
     @staticmethod
     def _check(*arrays: np.ndarray) -> None:

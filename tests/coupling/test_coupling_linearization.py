@@ -131,3 +131,22 @@ def test_a_map_without_a_unique_fixed_point_is_refused():
     participants, data = problem.build()
     with pytest.raises(ValueError, match="I - A is singular"):
         build_scheme(_config("serial", problem), participants, data).solve()
+
+
+def test_a_prior_too_large_for_the_memory_is_refused(monkeypatch):
+    """The dense system's size is checked against the available memory before it is allocated."""
+    import builtins
+    import io
+    from coupling.linearization import LinearizedPrior
+    real_open = builtins.open
+
+    def tiny_meminfo(path, *args, **kwargs):
+        if path == "/proc/meminfo":
+            return io.StringIO("MemTotal: 1000 kB\nMemAvailable: 1 kB\n")
+        return real_open(path, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "open", tiny_meminfo)
+    with pytest.raises(MemoryError, match="jacobian_prior = 'none'"):
+        LinearizedPrior._check_memory(1000, 400)
+    monkeypatch.setattr(builtins, "open", real_open)
+    LinearizedPrior._check_memory(10, 4)          # a small system passes on this machine
