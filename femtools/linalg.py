@@ -651,10 +651,12 @@ class NewtonSolver:
         """Loads applied as nodal values: subtracted from the residual at these local *owned* dofs.
 
         For data that arrive as consistent nodal forces (e.g. the cell's
-        reaction on Gamma2) rather than as a field to integrate.
+        reaction on Gamma2) rather than as a field to integrate.  A dof given
+        more than once (a node shared by two interfaces) takes the sum.
         """
-        self._load_dofs = np.asarray(dofs, dtype=np.int32)
-        self._load_values = np.asarray(values, dtype=float)
+        dofs, where = np.unique(np.asarray(dofs, dtype=np.int32), return_inverse=True)
+        self._load_dofs = dofs.astype(np.int32)
+        self._load_values = np.bincount(where, weights=np.asarray(values, dtype=float).ravel(), minlength=dofs.size)
 
     def set_interface_stiffness(self, dofs: np.ndarray, K: np.ndarray) -> None:
         """Add ``K u_I`` to the residual and ``K`` to the Jacobian, ``u_I = u[dofs]``.

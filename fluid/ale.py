@@ -247,12 +247,9 @@ class MovingStokesSolver(StokesSolver):
         self.motion.solve()
         dofs = [f["dofs"].ravel() for f in self._flux.values()]
         vals = [float(self._ifaces[k].alpha_n.value) * f["values"][f["rows"]].ravel() for k, f in self._flux.items()]
-        dofs = np.hstack(dofs).astype(np.int32) if dofs else np.empty(0, np.int32)
-        vals = np.hstack(vals) if vals else np.empty(0)
-        # a node shared by two interfaces (a corner) takes the sum of their loads: the solver's
-        # ``array[dofs] -= values`` would keep only one of repeated dofs
-        dofs, where = np.unique(dofs, return_inverse=True)
-        self.newton.set_nodal_loads(dofs.astype(np.int32), np.bincount(where, weights=vals, minlength=dofs.size))
+        # a corner node shared by two interfaces takes both loads (set_nodal_loads sums repeated dofs)
+        self.newton.set_nodal_loads(np.hstack(dofs).astype(np.int32) if dofs else np.empty(0, np.int32),
+                                    np.hstack(vals) if vals else np.empty(0))
         super()._solve()
 
     # -- state (time windows, checkpoints) ------------------------------------------

@@ -422,3 +422,27 @@ def test_cell_interface_jacobian_is_its_linear_response():
         free = out[key].ravel()[~held]
         assert np.linalg.norm(predicted[~held] - free) <= 1e-9 * np.linalg.norm(free), key
     assert np.all(out["displacement"].ravel()[held] == 0)
+
+
+def test_nodal_loads_on_a_repeated_dof_add_up():
+    """``set_nodal_loads``: a dof listed twice (a node shared by two interfaces) takes both loads,
+    the same solution as one load of their sum."""
+    msh, ft = rectangle(0.0, 0.0, 1.0, 0.5, 6, 4)
+    V = fem.VectorFunctionSpace(msh, ("Lagrange", 2))
+    v = ufl.TestFunction(V)
+    nodes = InterfaceNodes(V, ft, TOP)
+    owned_dofs = nodes.dofs()[nodes.owned].ravel().astype(np.int32)
+    solutions = []
+    for twice in (False, True):
+        u = fem.Function(V)
+        bc = fem.dirichletbc(np.zeros(2), fem.locate_dofs_topological(V, 1, ft.find(LEFT)), V)
+        newton = NewtonSolver(ufl.inner(ufl.grad(u), ufl.grad(v)) * ufl.dx, u, [bc], name="loads", rtol=1e-13)
+        values = np.linspace(1.0, 2.0, owned_dofs.size)
+        if twice:
+            newton.set_nodal_loads(np.hstack([owned_dofs, owned_dofs]), np.hstack([0.25 * values, 0.75 * values]))
+        else:
+            newton.set_nodal_loads(owned_dofs, values)
+        newton.solve()
+        solutions.append(owned(u).copy())
+    a, b = solutions
+    assert gnorm(b) > 0 and gnorm(a - b) <= 1e-12 * gnorm(a), gnorm(a - b) / gnorm(a)
