@@ -845,16 +845,23 @@ class NewtonSolver:
         raise NewtonError(self.name, f"no convergence in {self.max_it} iterations", self.history)
 
 
-def gather_csr(A: PETSc.Mat) -> "scipy.sparse.csr_matrix":
-    """The whole of an assembled PETSc matrix as a scipy CSR matrix on every rank (for small matrices)."""
+def gather_csr(A: PETSc.Mat, root: int | None = None) -> "scipy.sparse.csr_matrix | None":
+    """The whole of an assembled PETSc matrix as a scipy CSR matrix on every rank (for small matrices).
+
+    With ``root``: on that rank only (None on the others), e.g. for work done there and broadcast.
+    """
     import scipy.sparse
-    start = A.getOwnershipRange()[0]
     indptr, indices, values = A.getValuesCSR()
-    rows = np.repeat(np.arange(start, start + len(indptr) - 1), np.diff(indptr))
     comm = A.getComm().tompi4py()
     if comm.size > 1:
-        rows, indices, values = (np.hstack(comm.allgather(x)) for x in (rows, indices, values))
-    return scipy.sparse.csr_matrix((values, (rows, indices)), shape=A.getSize())
+        # the ranks own consecutive row blocks, in rank order
+        blocks = (np.diff(indptr), indices, values)
+        parts = comm.allgather(blocks) if root is None else comm.gather(blocks, root=root)
+        if parts is None:
+            return None
+        counts, indices, values = (np.concatenate([p[k] for p in parts]) for k in range(3))
+        indptr = np.concatenate([[0], np.cumsum(counts)])
+    return scipy.sparse.csr_matrix((values, indices, indptr), shape=A.getSize())
 
 
 def _petsc_library():
@@ -885,13 +892,28 @@ def schur_complement(K: "scipy.sparse.spmatrix", keep: np.ndarray) -> np.ndarray
     rank (``K`` replicated, e.g. from :func:`gather_csr`); petsc4py 3.18 does not
     wrap PETSc's Schur calls, so they are called through ctypes.  MUMPS does
     not report a singular eliminated block on this path (a zero row there
-    passes): the caller's own factorisation of K's system is the check.
+    passes): the caller's own factorisation of K's system is the check.  When
+    MUMPS asks for more workspace (badly scaled rows delay pivots), it is
+    retried with a larger ICNTL(14), up to three times, as
+    :meth:`DirectSolver.factorize` does.
     """
-    import ctypes
     keep = np.asarray(keep, dtype=PETSc.IntType)
     if keep.size == 0:
         return np.zeros((0, 0))
     K = K.tocsr()
+    icntl14 = DEFAULT_ICNTL[14]
+    for attempt in range(4):
+        try:
+            return _schur_complement(K, keep, icntl14)
+        except FactorizationError as exc:
+            if attempt == 3 or exc.infog1 not in DirectSolver.WORKSPACE_ERRORS:
+                raise
+            icntl14 = 2 * icntl14 + 100
+
+
+def _schur_complement(K: "scipy.sparse.csr_matrix", keep: np.ndarray, icntl14: int) -> np.ndarray:
+    """One attempt of :func:`schur_complement` with the workspace control ICNTL(14) = ``icntl14``."""
+    import ctypes
     lib = _petsc_library()
     M = PETSc.Mat().createAIJ(K.shape, csr=(K.indptr.astype(PETSc.IntType), K.indices.astype(PETSc.IntType),
                                             K.data.astype(PETSc.ScalarType)), comm=PETSc.COMM_SELF)
@@ -903,6 +925,7 @@ def schur_complement(K: "scipy.sparse.spmatrix", keep: np.ndarray) -> np.ndarray
     pc.setFactorSolverType("mumps")
     pc.setFactorSetUpSolverType()
     F = pc.getFactorMatrix()
+    F.setMumpsIcntl(14, icntl14)
     kept = PETSc.IS().createGeneral(keep, comm=PETSc.COMM_SELF)
     handle = ctypes.c_void_p(F.handle)
     try:

@@ -99,8 +99,8 @@ from dolfinx.fem import petsc as fem_petsc
 
 from femtools.functions import interpolate, quadrature_measure, set_function, von_mises
 from femtools.interface import InterfaceNodes
-from femtools.linalg import DirectSolver, FactorizationError, NewtonSolver, assemble_residual_vector, \
-    jacobian_at_rest, schur_complement
+from femtools.linalg import NewtonSolver, assemble_residual_vector, gather_csr, jacobian_at_rest, \
+    schur_complement
 from femtools.mesh import as_tags, tagged_facets
 from femtools.serialize import CanonicalOrder, MixedCanonical
 from femtools.solver import FieldSolver
@@ -126,44 +126,6 @@ FIELDS = ("w", "u", "p")
 DEFAULT_PETSC_OPTIONS = {"mat_mumps_icntl_8": 8, "mat_mumps_icntl_14": 200}
 _FIELD_INDEX = {name: i for i, name in enumerate(FIELDS)}
 _FIELD_INDEX["v_f"] = 0     # Dirichlet data for v_f are data for w (= v_f where v_s = 0)
-
-
-def _gather_csr_root(A: PETSc.Mat) -> scipy.sparse.csr_matrix | None:
-    """An assembled PETSc matrix as a scipy CSR matrix on rank 0 (None elsewhere), without a COO pass."""
-    indptr, indices, values = A.getValuesCSR()
-    comm = A.getComm().tompi4py()
-    if comm.size > 1:
-        parts = comm.gather((np.diff(indptr), indices, values), root=0)   # row blocks in rank order
-        if comm.rank != 0:
-            return None
-        counts, indices, values = (np.concatenate([p[k] for p in parts]) for k in range(3))
-        indptr = np.concatenate([[0], np.cumsum(counts)])
-    return scipy.sparse.csr_matrix((values, indices, indptr), shape=A.getSize())
-
-
-def _schur_complement(K: scipy.sparse.csr_matrix, keep: np.ndarray) -> np.ndarray:
-    """``femtools.linalg.schur_complement``, with more MUMPS workspace (ICNTL(14)) if it asks for it.
-
-    That function sets no MUMPS controls; its matrix has no options prefix, so ICNTL(14) is passed
-    through the options database for the one call and removed again.
-    """
-    options, key, icntl14 = PETSc.Options(), "mat_mumps_icntl_14", None
-    previous = options.getString(key) if options.hasName(key) else None
-    try:
-        for attempt in range(4):
-            try:
-                return schur_complement(K, keep)
-            except FactorizationError as exc:
-                if attempt == 3 or exc.infog1 not in DirectSolver.WORKSPACE_ERRORS:
-                    raise
-                icntl14 = 2 * (icntl14 or 100) + 100
-                options[key] = icntl14
-    finally:
-        if icntl14 is not None:
-            if previous is None:
-                options.delValue(key)
-            else:
-                options[key] = previous
 
 
 def _max_abs(M) -> np.ndarray:
@@ -800,7 +762,7 @@ class PoroelasticGelSolver(FieldSolver):
             A.zeroEntries()
             fem_petsc.assemble_matrix(A, form)
             A.assemble()
-            out[block] = _gather_csr_root(A)
+            out[block] = gather_csr(A, root=0)
         A.destroy()
         return out if self.mesh.comm.rank == 0 else None
 
@@ -812,13 +774,13 @@ class PoroelasticGelSolver(FieldSolver):
         newton = self._newton
         if getattr(newton, "_have_jacobian", False) and newton.uses_reference_jacobian:
             # the solver holds the kept matrix (J_reference, Dirichlet rows, interface stiffnesses)
-            K = _gather_csr_root(newton.A)
+            K = gather_csr(newton.A, root=0)
             stiffnesses = {}
         else:
             A = newton.A.duplicate(copy=False)          # its pattern (J's, and the stiffnesses'), zeros
             fem_petsc.assemble_matrix(A, newton.J_reference, bcs=self.bcs)
             A.assemble()
-            K = _gather_csr_root(A)
+            K = gather_csr(A, root=0)
             A.destroy()
             stiffnesses = self._stiffness
         rows, cols, vals = [], [], []
@@ -885,7 +847,7 @@ class PoroelasticGelSolver(FieldSolver):
         nf, ng = gamma_f.size, gamma.size
         order = np.argsort(gamma)
         S = np.empty((ng, ng))
-        S[np.ix_(order, order)] = _schur_complement(K, gamma[order])      # rows/columns in the order of gamma
+        S[np.ix_(order, order)] = schur_complement(K, gamma[order])      # rows/columns in the order of gamma
         pos = np.full(K.shape[0], -1, dtype=np.int64)
         pos[gamma] = np.arange(ng)
 
