@@ -86,7 +86,6 @@ import typing
 
 import numpy as np
 import scipy.linalg
-import scipy.sparse
 import scipy.spatial
 
 from mpi4py import MPI
@@ -771,27 +770,8 @@ class PoroelasticGelSolver(FieldSolver):
         kept matrix onto the interface dofs G (the data act on no other row; no other row is read)."""
         comm = self.mesh.comm
         # -- collective part: the kept matrix and the data derivatives (on rank 0), the dofs (replicated)
-        newton = self._newton
-        if getattr(newton, "_have_jacobian", False) and newton.uses_reference_jacobian:
-            # the solver holds the kept matrix (J_reference, Dirichlet rows, interface stiffnesses)
-            K = gather_csr(newton.A, root=0)
-            stiffnesses = {}
-        else:
-            A = newton.A.duplicate(copy=False)          # its pattern (J's, and the stiffnesses'), zeros
-            fem_petsc.assemble_matrix(A, newton.J_reference, bcs=self.bcs)
-            A.assemble()
-            K = gather_csr(A, root=0)
-            A.destroy()
-            stiffnesses = self._stiffness
-        rows, cols, vals = [], [], []
-        for dofs, Ks in stiffnesses.values():
-            use = dofs >= 0
-            r, c = np.meshgrid(dofs[use], dofs[use], indexing="ij")
-            rows.append(r.ravel())
-            cols.append(c.ravel())
-            vals.append(Ks[np.ix_(use, use)].ravel())
-        if rows and K is not None:
-            K = K + scipy.sparse.csr_matrix((np.hstack(vals), (np.hstack(rows), np.hstack(cols))), shape=K.shape)
+        # the kept matrix (J_reference, Dirichlet rows, interface stiffnesses) on rank 0
+        K = self._newton.reference_csr(root=0)
         sel = {}            # (interface, field) -> (N, 2) global W dofs of w or u, -1 where fixed
         for name, d in self._fluid.items():
             sel[name, "w"] = d["nodes"].global_dofs(self.W, parent=True, bcs=self.bcs)
