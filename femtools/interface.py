@@ -201,3 +201,11 @@ class InterfaceMass:
         if self._lu is not None:
             out[self._kept] = self._lu.solve(R[self._kept])
         return out.reshape(self.keep.shape)
+
+    def solve_columns(self, R: np.ndarray) -> np.ndarray:
+        """:meth:`solve` for several right-hand sides at once: columns of ``R`` (N bs, k), rows ``bs i + c``."""
+        R = np.asarray(R, dtype=float)
+        out = np.zeros((self.size, R.shape[1]))
+        if self._lu is not None:
+            out[self._kept] = self._lu.solve(np.asfortranarray(R[self._kept]))
+        return out

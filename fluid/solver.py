@@ -46,7 +46,6 @@ import typing
 
 import numpy as np
 import scipy.sparse
-import scipy.sparse.linalg
 
 from mpi4py import MPI
 from petsc4py import PETSc
@@ -766,15 +765,12 @@ class StokesSolver(FieldSolver):
             on = p >= 0
             velocity = np.zeros((p.size, B.shape[1]))
             velocity[on] = X[p[on]]
-            mass = it.traction_mass
-            keep = mass.keep.ravel()
-            if np.any(p[keep] < 0):
+            if np.any(p[it.traction_mass.keep.ravel()] < 0):
                 raise RuntimeError(f"{self.name}: interface {it.name!r}: a traction component is kept "
                                    f"where the velocity is fixed")
-            traction = np.zeros_like(velocity)
-            if keep.any():
-                lu = scipy.sparse.linalg.splu(mass.matrix[keep][:, keep].tocsc())
-                traction[keep] = lu.solve(np.asfortranarray(R[p[keep]]))
+            reaction = np.zeros_like(velocity)
+            reaction[on] = R[p[on]]
+            traction = it.traction_mass.solve_columns(reaction)
             for k, col in enumerate(columns):
                 block = slice(widths[k], widths[k + 1])
                 out[((it.name, "velocity"), col)] = np.ascontiguousarray(velocity[:, block])
