@@ -219,6 +219,7 @@ class NeoHookeanCellSolver(FieldSolver):
         bcs = []
         self._interface_bc_values: dict[str, fem.Function] = {}
         self._interface_bcs: dict[str, fem.DirichletBCMetaClass] = {}
+        self._interface_stiffness: dict[str, np.ndarray] = {}      # interface_stiffness(), per interface
         for iname, tags in interfaces.items():
             tags = as_tags(tags)
             facets = self._facets(tags, f"interfaces[{iname!r}]")
@@ -363,10 +364,17 @@ class NeoHookeanCellSolver(FieldSolver):
         complement K_GG - K_GI K_II^-1 K_IG of the Jacobian at rest onto the
         interface dofs; symmetric, positive semi-definite.  Rows and columns of dofs
         another condition fixes (a symmetry line through the interface) are zero.
+        Computed once per interface (the operator at rest does not change) and
+        returned as a copy.
         """
         if name not in self._interface_bcs:
             raise KeyError(f"{self.name}: {name!r} is not a Dirichlet interface; they are "
                            f"{sorted(self._interface_bcs)}")
+        if name not in self._interface_stiffness:
+            self._interface_stiffness[name] = self._condensed_stiffness(name)
+        return self._interface_stiffness[name].copy()
+
+    def _condensed_stiffness(self, name: str) -> np.ndarray:
         others = [bc for bc in self.bcs if bc is not self._interface_bcs[name]]
         A = fem_petsc.assemble_matrix(self._newton.J_reference, bcs=others)
         A.assemble()
