@@ -446,25 +446,24 @@ class GelParticipant(cp.Participant):
         self.solver.set_time_step(dt, scheme, dt_previous)
 
     def jacobian(self):
-        """d(outputs)/d(inputs) of the gel linearised at rest (``PoroelasticGelSolver.interface_jacobian``)."""
-        inputs = {"traction": "traction", "velocity": "velocity", "force": "force"}
-        outputs = {"traction": "gel_traction", **{k: k for k in self._sent()}}
+        """d(outputs)/d(inputs) of the gel linearised at rest (``PoroelasticGelSolver.interface_jacobian``).
+
+        The solver's keys are the data's, except its fluid-interface ``traction`` (sent as
+        ``gel_traction``) and its cell-interface ``displacement`` input (``cell_displacement``,
+        read with ``gamma2="schur"`` only); outputs it does not send are left out.
+        """
+        sent = {f"{g}/{k}" for g in self.fluid_interfaces for k in ("gel_traction",) + self._sent()}
+        sent |= {f"{g}/displacement" for g in self.cell_interfaces}
         out: dict[tuple[str, str], np.ndarray] = {}
         for ((g, key), (h, solver_input)), J in self.solver.interface_jacobian().items():
-            if g in self.cell_interfaces:
-                data_out = f"{g}/displacement" if key == "displacement" else None
-            else:
-                data_out = f"{g}/{outputs[key]}" if key in outputs else None
+            data_out = f"{g}/gel_traction" if g in self.fluid_interfaces and key == "traction" else f"{g}/{key}"
+            data_in = f"{h}/{solver_input}"
             if h in self.cell_interfaces and solver_input == "displacement":
-                data_in = f"{h}/cell_displacement" if self.gamma2 == "schur" else None
-            else:
-                data_in = f"{h}/{inputs[solver_input]}" if solver_input in inputs else None
-            if data_out is not None and data_in is not None:
+                if self.gamma2 != "schur":
+                    continue                    # u* is read by the condensed split only
+                data_in = f"{h}/cell_displacement"
+            if data_out in sent:
                 out[(data_out, data_in)] = J
-        if self.gamma2 == "robin":
-            for g in self.cell_interfaces:
-                n = 2 * self.solver.interface_points(g).shape[0]
-                out[(f"{g}/gel_force", f"{g}/force")] = -np.eye(n)
         return out
 
     def _sent(self) -> tuple[str, ...]:
