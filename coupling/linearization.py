@@ -68,12 +68,8 @@ def _identity(scheme: Any, names) -> dict[str, Blocks]:
 
 
 def _add(blocks: Blocks, var: str, M: Any) -> None:
-    if var not in blocks:
-        blocks[var] = M
-    elif sp.issparse(blocks[var]) and sp.issparse(M):
-        blocks[var] = blocks[var] + M
-    else:     # a sparse + dense sum is an np.matrix: keep plain arrays
-        blocks[var] = np.asarray(blocks[var] + M) if sp.issparse(M) else np.asarray(M + blocks[var])
+    total = blocks[var] + M if var in blocks else M
+    blocks[var] = total if sp.issparse(total) else np.asarray(total)    # sparse + dense is an np.matrix
 
 
 def _product(J: np.ndarray, M: Any) -> np.ndarray:
