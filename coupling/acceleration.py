@@ -509,23 +509,17 @@ class _QuasiNewton(Acceleration):
 
     def _prior(self, r: np.ndarray) -> np.ndarray:
         """``J0 r`` for a vector, or ``J0 R`` column by column for a matrix."""
-        if r.ndim == 2:
-            if r.shape[1] == 0:
-                return np.zeros_like(r)
-            if self.surrogate is None:
-                return self.prior_diagonal[:, None] * r
-            if getattr(self.surrogate, "accepts_matrices", False):      # all columns in one call
-                out = np.asarray(self.surrogate.inverse_jacobian(r.copy()), dtype=float)
-                if out.shape != r.shape:
-                    raise ValueError(f"surrogate.inverse_jacobian returned shape {out.shape}, expected {r.shape}")
-                return out
+        if self.surrogate is None:
+            return (self.prior_diagonal[:, None] if r.ndim == 2 else self.prior_diagonal) * r
+        if r.ndim == 2 and r.shape[1] == 0:
+            return np.zeros_like(r)
+        if r.ndim == 2 and not getattr(self.surrogate, "accepts_matrices", False):
             return np.column_stack([self._prior(r[:, j]) for j in range(r.shape[1])])
-        if self.surrogate is not None:
-            out = np.asarray(self.surrogate.inverse_jacobian(r.copy()), dtype=float).reshape(-1)
-            if out.shape != r.shape:
-                raise ValueError(f"surrogate.inverse_jacobian returned shape {out.shape}, expected {r.shape}")
-            return out
-        return self.prior_diagonal * r
+        out = np.asarray(self.surrogate.inverse_jacobian(r.copy()), dtype=float)
+        out = out.reshape(-1) if r.ndim == 1 else out
+        if out.shape != r.shape:
+            raise ValueError(f"surrogate.inverse_jacobian returned shape {out.shape}, expected {r.shape}")
+        return out
 
     def _prior_step(self, x_tilde: np.ndarray, r: np.ndarray) -> np.ndarray:
         self.info.relaxation = None
