@@ -24,7 +24,18 @@ from dolfinx.fem import petsc as fem_petsc
 
 from femtools.mesh import as_tags, tagged_facets
 
-__all__ = ["InterfaceNodes", "InterfaceMass"]
+__all__ = ["InterfaceNodes", "InterfaceMass", "global_dofs"]
+
+
+def global_dofs(space: fem.FunctionSpace, local: np.ndarray, bcs=()) -> np.ndarray:
+    """Global unrolled indices of local unrolled dofs of ``space`` (any shape); -1 where ``bcs`` fix them."""
+    imap, bs = space.dofmap.index_map, space.dofmap.index_map_bs
+    local = np.asarray(local)
+    glob = imap.local_to_global((local // bs).ravel().astype(np.int32)).reshape(local.shape) * bs + local % bs
+    fixed = np.zeros((imap.size_local + imap.num_ghosts) * bs, dtype=bool)
+    for bc in bcs:
+        fixed[bc.dof_indices()[0]] = True
+    return np.where(fixed[local], -1, glob)
 
 
 class InterfaceNodes:
@@ -95,13 +106,7 @@ class InterfaceNodes:
         ``space``: ``V`` itself, or with ``parent=True`` the parent (mixed) space of the
         ``parent_dofs`` map.  Dofs that a Dirichlet condition of ``bcs`` fixes are -1.
         """
-        imap, bs = space.dofmap.index_map, space.dofmap.index_map_bs
-        local = self.dofs(parent=parent)
-        glob = imap.local_to_global((local // bs).ravel().astype(np.int32)).reshape(local.shape) * bs + local % bs
-        fixed = np.zeros((imap.size_local + imap.num_ghosts) * bs, dtype=bool)
-        for bc in bcs:
-            fixed[bc.dof_indices()[0]] = True
-        glob = np.where(fixed[local], -1, glob)
+        glob = global_dofs(space, self.dofs(parent=parent), bcs)
         # gathered as floats: exact for any dof count below 2**53
         return np.rint(self.gather(glob.astype(float))).astype(np.int64)
 

@@ -55,7 +55,7 @@ from dolfinx import cpp as _cpp, fem, mesh as dmesh
 from dolfinx.fem import petsc as fem_petsc
 
 from femtools.functions import quadrature_measure, set_function
-from femtools.interface import InterfaceMass, InterfaceNodes
+from femtools.interface import InterfaceMass, InterfaceNodes, global_dofs
 from femtools.mesh import as_tags, connected_components, tagged_facets
 from femtools.linalg import LinearSolver, SolverStats, gather_csr, schur_complement
 from femtools.solver import FieldSolver
@@ -707,11 +707,8 @@ class StokesSolver(FieldSolver):
         imap, bs = self.W.dofmap.index_map, self.W.dofmap.index_map_bs
         n_cells = self.mesh.topology.index_map(self.mesh.topology.dim).size_local
         local = dofmap.list.array.reshape(-1, dofmap.dof_layout.num_dofs)[:n_cells]
-        fixed = np.zeros((imap.size_local + imap.num_ghosts) * bs, dtype=bool)
-        for bc in self.bcs:
-            fixed[bc.dof_indices()[0]] = True
-        glob = (imap.local_to_global((local // bs).ravel().astype(np.int32)) * bs + local.ravel() % bs)
-        use = (local.ravel() < imap.size_local * bs) & ~fixed[local.ravel()]
+        glob = global_dofs(self.W, local.ravel(), self.bcs)            # -1: fixed by a condition
+        use = (local.ravel() < imap.size_local * bs) & (glob >= 0)
         best = np.full(count, np.iinfo(np.int64).max, dtype=np.int64)
         np.minimum.at(best, np.repeat(labels[:n_cells], local.shape[1])[use], glob[use].astype(np.int64))
         if self.comm.size > 1:
