@@ -25,20 +25,18 @@ cannot be written is skipped.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import functools
 import hashlib
 import importlib.util
 import json
-import logging
 import os
 import re
-import tempfile
 
 import numpy as np
 
 from femtools.mesh import ModelArrays
+from gelcell import diskcache
 from gelcell.parameters import CaseParameters
 
 __all__ = ["CACHE_FORMAT", "CACHED_CASES", "MAX_ENTRIES", "cache_dir", "cache_key", "cache_path", "enabled", "load",
@@ -55,26 +53,18 @@ _SOURCE_MODULES = ("gelcell.geometry", "gelcell.gmshmodel", "gelcell.parameters"
 #: the name of an entry (pruning removes nothing else from a directory the user chose)
 _ENTRY_NAME = re.compile(r"^(%s)-[0-9a-f]{64}\.npz$" % "|".join(CACHED_CASES))
 
-_log = logging.getLogger(__name__)
-
 
 def enabled() -> bool:
     """False if ``GELCELL_MESH_CACHE=0`` (always mesh)."""
-    return os.environ.get("GELCELL_MESH_CACHE", "1").strip() != "0"
+    return diskcache.enabled("GELCELL_MESH_CACHE")
 
 
 def cache_dir() -> str:
     """``$GELCELL_CACHE_DIR``, else ``$XDG_CACHE_HOME/gelcell/meshes``, else ``~/.cache/gelcell/meshes``."""
-    if os.environ.get("GELCELL_CACHE_DIR"):
-        return os.environ["GELCELL_CACHE_DIR"]
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return os.path.join(base, "gelcell", "meshes")
+    return os.environ.get("GELCELL_CACHE_DIR") or os.path.join(diskcache.cache_root(), "meshes")
 
 
-def _module_source_hash(name: str) -> str:
-    """sha256 of a module's source file, found without importing it (gelcell.gmshmodel imports gmsh)."""
-    with open(importlib.util.find_spec(name).origin, "rb") as f:
-        return hashlib.sha256(f.read()).hexdigest()
+_module_source_hash = diskcache.source_hash      # without importing it (gelcell.gmshmodel imports gmsh)
 
 
 def _gmsh_version() -> str:
@@ -150,18 +140,7 @@ def load(params: CaseParameters) -> ModelArrays | None:
     """The cached arrays of the device of ``params``, or None (not cached, disabled, or unreadable)."""
     if not _cached(params):
         return None
-    path = cache_path(params)
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = _from_npz(data)
-    except FileNotFoundError:
-        return None
-    except Exception as exc:           # a corrupt or foreign entry is a miss; store() replaces it
-        _log.debug("mesh cache: ignoring unreadable entry %s: %s", path, exc)
-        return None
-    with contextlib.suppress(OSError):
-        os.utime(path)                 # recently used: kept by _prune
-    return arrays
+    return diskcache.read_npz(cache_path(params), _from_npz)
 
 
 def store(params: CaseParameters, arrays: ModelArrays) -> None:
@@ -169,28 +148,11 @@ def store(params: CaseParameters, arrays: ModelArrays) -> None:
     if not _cached(params):
         return
     path = cache_path(params)
-    directory = os.path.dirname(path)
-    try:
-        os.makedirs(directory, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=directory, prefix=".tmp-", suffix=".npz")
-        try:
-            with os.fdopen(fd, "wb") as f:
-                np.savez_compressed(f, **_to_npz(arrays))   # 2.4x smaller, +4 ms to read
-            os.replace(tmp, path)     # atomic: a concurrent reader sees the old entry or the whole new one
-        finally:
-            with contextlib.suppress(OSError):
-                os.remove(tmp)        # left only if writing failed or was interrupted
-    except OSError as exc:             # e.g. a read-only cache directory: the run goes on uncached
-        _log.debug("mesh cache: cannot write %s: %s", path, exc)
-        return
-    _prune(directory)
+    # compressed: 2.4x smaller, +4 ms to read
+    if diskcache.write_npz(path, _to_npz(arrays), compressed=True):
+        _prune(os.path.dirname(path))
 
 
 def _prune(directory: str) -> None:
     """Remove all but the :data:`MAX_ENTRIES` most recently used entries of ``directory``."""
-    with contextlib.suppress(OSError):
-        with os.scandir(directory) as it:
-            found = [(e.stat().st_mtime, e.path) for e in it if _ENTRY_NAME.match(e.name)]
-        for _, old in sorted(found, reverse=True)[MAX_ENTRIES:]:
-            with contextlib.suppress(OSError):
-                os.remove(old)
+    diskcache.prune(directory, _ENTRY_NAME, MAX_ENTRIES)
