@@ -90,16 +90,20 @@ from femtools.serialize import CanonicalOrder
 from femtools.timestepping import WindowClock
 from gelcell.boundaries import DeviceBoundaries, device_layout
 from gelcell.geometry import build_device
+from gelcell import priorcache
 from gelcell.parameters import DEFAULT_GAMMA2, GAMMA2, CaseParameters
 
 __all__ = ["Device", "FluidParticipant", "MovingFluidParticipant", "GelParticipant", "CellParticipant",
            "coupling_data", "default_robin_coefficient", "coupling_config", "gamma2_stiffness_ratio",
-           "default_relaxation_prior", "reuse_key"]
+           "default_relaxation_prior", "reuse_key", "AUTO_PRIOR_MAX_UNKNOWNS"]
 
 FLUID_TO_GEL = ("traction", "velocity")
 GEL_TO_FLUID = ("gel_traction", "mixture_velocity", "interstitial_velocity")
 #: gel -> fluid with finite kinematics (see the module docstring)
 GEL_TO_MOVING_FLUID = ("gel_traction", "normal_flux", "interstitial_velocity", "displacement")
+#: the device default uses the linearized prior up to this many interface unknowns (the default
+#: mesh has 2440 (shear); at mesh-size 0.5, 4900, it would cost 7 s and 2.5 GB to save ~3 s)
+AUTO_PRIOR_MAX_UNKNOWNS = 4000
 
 
 def default_robin_coefficient(params: CaseParameters) -> float:
@@ -222,7 +226,7 @@ def coupling_config(scheme: str = "serial", acceleration: str = "iqn-ils", *, li
                     max_iterations: int = 200, with_cell: bool = True,
                     overrides: typing.Mapping | None = None, transient: bool = False,
                     params: CaseParameters | None = None, gamma2: str = DEFAULT_GAMMA2,
-                    jacobian_prior: str = "none") -> dict:
+                    jacobian_prior: str | None = None) -> dict:
     """A ``[coupling]`` table for a device run (TOML overrides are merged on top).
 
     Convergence: every exchanged data to a relative residual ``limit``.
@@ -235,7 +239,9 @@ def coupling_config(scheme: str = "serial", acceleration: str = "iqn-ils", *, li
     ``jacobian_prior="linearized"`` (IQN): the prior of the quasi-Newton step
     is the Newton step on the coupled map linearised at rest from the three
     solvers' interface Jacobians (``coupling.linearization``; each
-    participant's ``jacobian()``), instead of the relaxation prior.
+    participant's ``jacobian()``), instead of the relaxation prior; ``"none"``:
+    the secant model alone (with the relaxation prior); None: the device's
+    choice (``Device.solve``: linearized where it pays).
     Time-dependent runs (``transient``): each window starts from the quadratic
     extrapolation of the last three (docs/transient.md), every iteration solves from the window's
     checkpoint (the library's ``state_reload = "iteration"``, so that each
@@ -271,9 +277,9 @@ def coupling_config(scheme: str = "serial", acceleration: str = "iqn-ils", *, li
                 acc["time_windows_reused"] = 4
             prior = (default_relaxation_prior(params)
                      if params is not None and scheme == "serial" and gamma2 == "dirichlet" else {})
-            if jacobian_prior != "none":
-                acc["jacobian_prior"] = jacobian_prior     # replaces the relaxation prior
-            elif prior:
+            if jacobian_prior is not None:
+                acc["jacobian_prior"] = jacobian_prior
+            if prior and jacobian_prior != "linearized":      # the linearized prior replaces it
                 acc["relaxation_prior"] = prior
     config = {"scheme": f"{scheme}-implicit" if scheme in ("serial", "parallel") else scheme,
               "order": order, "max_iterations": max_iterations, "acceleration": acc,
@@ -651,6 +657,8 @@ class Device:
         self.data = coupling_data(b, gamma2, self.kinematics)
         self.scheme: cp.CouplingScheme | None = None
         self.result: cp.CouplingResult | None = None
+        #: where the last solve's linearized prior came from: "computed", "disk cache", "reused" or None
+        self.prior_source: str | None = None
 
     def _condense_cell(self) -> None:
         """Give the gel the cell's Steklov-Poincare operator on each Gamma2 (``gamma2="schur"``)."""
@@ -712,13 +720,49 @@ class Device:
         prediction extrapolated from earlier solves.
         """
         config = dict(config or coupling_config(with_cell=self.cell is not None, params=self.params))
-        self._choose_solve_paths(config)
         config.setdefault("verbose", verbose)
         config.setdefault("record_data", record_data)
-        self.scheme = cp.build_scheme(config, self.participants, self.data, comm=self.comm)
+        chosen = self._default_prior(config)
+        self.scheme = cp.build_scheme(chosen, self.participants, self.data, comm=self.comm)
+        if chosen is not config and self.scheme.layout.size > AUTO_PRIOR_MAX_UNKNOWNS:
+            chosen = config                             # too large to pay: the plain secant model
+            self.scheme = cp.build_scheme(chosen, self.participants, self.data, comm=self.comm)
+        self._choose_solve_paths(chosen)
         if reuse is not None:
             self.scheme.load_reuse_state(reuse, participants=self._fits(reuse.get("participants")))
         if initial is not None:
             self.scheme.set_values(initial)
+        prior = self.linearized_prior
+        self.prior_source = None if prior is None else "reused" if prior.state() is not None else "computed"
+        if self.prior_source == "computed":
+            prior.load_state(priorcache.load(self, self.scheme, self.comm))
+            self.prior_source = "computed" if prior.state() is None else "disk cache"
         self.result = self.scheme.solve()
+        if self.prior_source == "computed" and self.result.converged:
+            priorcache.store(self, self.scheme, prior.state(), self.comm)
         return self.result
+
+    @property
+    def linearized_prior(self) -> cp.LinearizedPrior | None:
+        """The last solve's linearized prior, or None if it had none."""
+        prior = getattr(self.scheme.acceleration, "surrogate", None) if self.scheme is not None else None
+        return prior if isinstance(prior, cp.LinearizedPrior) else None
+
+    def _default_prior(self, config: dict) -> dict:
+        """``config`` with the linearized prior where the device default has it (a new dict), else ``config``.
+
+        The default where it pays: a steady run of a built-in device with IQN
+        whose acceleration table sets neither ``jacobian_prior`` nor
+        ``relaxation_prior``, with ``gamma2`` "schur" or "dirichlet" (the
+        cell's Jacobian has no Robin-Neumann form), and at most
+        :data:`AUTO_PRIOR_MAX_UNKNOWNS` interface unknowns (checked by the
+        caller).  Its factorisation is then kept on disk
+        (:mod:`gelcell.priorcache`): computing it costs more than the
+        iterations it saves in one run, loading it does not.
+        """
+        acc = config.get("acceleration")
+        if (not isinstance(acc, typing.Mapping) or acc.get("type") not in ("iqn-ils", "iqn-imvj")
+                or "jacobian_prior" in acc or acc.get("relaxation_prior") or self.transient
+                or self.gamma2 == "robin" or self.params.case not in priorcache.CACHED_CASES):
+            return config
+        return {**config, "acceleration": {**acc, "jacobian_prior": "linearized"}}

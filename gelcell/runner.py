@@ -176,6 +176,8 @@ def solve_partitioned(params: CaseParameters, scheme: str = "serial", accelerati
         "scheme": config["scheme"], "acceleration": config["acceleration"]["type"],
         "robin_coefficient": device.alpha_n, "gamma2": device.gamma2,
         "gamma2_coefficient": device.kappa if device.gamma2 == "robin" else None,
+        "jacobian_prior": "none" if device.linearized_prior is None else "linearized",
+        "prior_source": device.prior_source,
         "iterations": result.iterations, "converged": result.converged,
         "reason": result.reason, "reused": reused, "residual_history": result.residual_history,
         "relaxation": result.relaxation}
