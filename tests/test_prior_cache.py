@@ -57,14 +57,21 @@ def base(case: str = "shear") -> CaseParameters:
 
 @pytest.mark.parametrize("case", ["shear", "normal"])
 def test_a_hit_repeats_the_computed_run(cache, case):
-    """Computed once, stored; the next run loads it and takes exactly the same iterates."""
+    """Computed once, stored; the next run loads it and takes the same iterates.
+
+    Serial runs are bitwise repeatable, so a hit must repeat the miss exactly; on 2 ranks two
+    equal runs already differ by round-off (~3e-15, MUMPS's parallel reductions), far below what
+    another prior would change (the coupling stops at a relative residual of 1e-10).
+    """
     first = solve(base(case))
     assert first.prior_source == "computed" and first.linearized_prior.setup_time > 0
     assert len(entries(cache)) == 1
     second = solve(base(case))
     assert second.prior_source == "disk cache" and second.linearized_prior.setup_time == 0
     assert second.result.iterations == first.result.iterations
-    assert np.array_equal(interface_values(second), interface_values(first))
+    a, b = interface_values(second), interface_values(first)
+    tolerance = 0.0 if COMM.size == 1 else 1e-13
+    assert np.max(np.abs(a - b)) <= tolerance * np.max(np.abs(b))
 
 
 def test_one_entry_serves_every_ca_and_no_other_problem(cache):
