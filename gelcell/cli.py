@@ -269,7 +269,7 @@ def _add_solver_arguments(p: argparse.ArgumentParser) -> None:
                         "three solvers' interface Jacobians (3-5 iterations instead of 14-39; ~1.3 s to compute "
                         "at the default mesh, then loaded from the disk cache in ~0.1 s); none = the secant "
                         "model alone.  Default: the case file's [coupling.acceleration] jacobian_prior, else "
-                        "linearized for steady runs of the built-in devices with at most 4000 interface "
+                        "linearized for steady runs with at most 4000 interface "
                         "unknowns (mesh-size >= ~0.7), none otherwise (docs/coupling.md)")
     g.add_argument("--monolithic", action="store_true",
                    help="solve the monolithic reference (all fields in one Newton system) instead")

@@ -751,7 +751,7 @@ class Device:
     def _default_prior(self, config: dict) -> dict:
         """``config`` with the linearized prior where the device default has it (a new dict), else ``config``.
 
-        The default where it pays: a steady run of a built-in device with IQN
+        The default where it pays: a steady run with IQN
         whose acceleration table sets neither ``jacobian_prior`` nor
         ``relaxation_prior``, with ``gamma2`` "schur" or "dirichlet" (the
         cell's Jacobian has no Robin-Neumann form), and at most
@@ -763,6 +763,6 @@ class Device:
         acc = config.get("acceleration")
         if (not isinstance(acc, typing.Mapping) or acc.get("type") not in ("iqn-ils", "iqn-imvj")
                 or "jacobian_prior" in acc or acc.get("relaxation_prior") or self.transient
-                or self.gamma2 == "robin" or self.params.case not in priorcache.CACHED_CASES):
+                or self.gamma2 == "robin"):
             return config
         return {**config, "acceleration": {**acc, "jacobian_prior": "linearized"}}

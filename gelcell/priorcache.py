@@ -10,14 +10,14 @@ serves every run of a scaled problem, and a wrong entry could only cost
 iterations: the residual that stops the coupling is the real map's.
 
 * Key: the sha256 of everything the prior depends on (:func:`cache_key`): the
-  mesh cache's key (geometry, element sizes, versions), every parameter except
-  Ca, the device's interface conditions (Robin coefficients, the split on
-  Gamma2), the scheme (type, order, accelerated data and their shapes), the
+  mesh cache's key (geometry, element sizes, versions), the content of a
+  geometry file (its groups name the boundary conditions), every parameter
+  except Ca, the device's interface conditions (Robin coefficients, the split
+  on Gamma2), the scheme (type, order, accelerated data and their shapes), the
   interface points, :data:`CACHE_FORMAT` and the source of the modules that
   compute the Jacobians.
-* What: steady runs of the built-in devices (``shear``, ``normal``); a
-  time-dependent run's prior depends on its step, and a geometry file's
-  content is not keyed.
+* What: steady runs, of the built-in devices and of geometry files; a
+  time-dependent run's prior depends on its step.
 * Where: ``$GELCELL_PRIOR_CACHE_DIR``, else ``$XDG_CACHE_HOME/gelcell/priors``,
   else ``~/.cache/gelcell/priors``.  ``GELCELL_PRIOR_CACHE=0`` turns it off.
 * Size: an entry is the dense factorisation, uncompressed (70 MB for the shear
@@ -40,7 +40,7 @@ import numpy as np
 
 from gelcell import diskcache, meshcache
 
-__all__ = ["CACHE_FORMAT", "CACHED_CASES", "MAX_BYTES", "MAX_ENTRY_BYTES", "cache_dir", "cache_key", "enabled",
+__all__ = ["CACHE_FORMAT", "MAX_BYTES", "MAX_ENTRY_BYTES", "cache_dir", "cache_key", "enabled",
            "load", "store"]
 
 #: version of the entry layout; bump it when that changes
@@ -52,10 +52,8 @@ MAX_BYTES = 2 * 2**30
 #: modules whose source decides the interface Jacobians and their composition
 _SOURCE_MODULES = ("fluid.solver", "fluid.ale", "gel.solver", "cell.solver", "femtools.linalg", "femtools.interface",
                    "gelcell.device", "coupling.linearization", "coupling.mapping")
-#: cases whose prior is cached: the built-in devices (a geometry file's content is not keyed)
-CACHED_CASES = meshcache.CACHED_CASES
 _ARRAYS = {"C", "Z", "A", "lu", "piv"}
-_ENTRY_NAME = re.compile(r"^(%s)-[0-9a-f]{64}\.npz$" % "|".join(CACHED_CASES))
+_ENTRY_NAME = re.compile(r"^(shear|normal|file)-[0-9a-f]{64}\.npz$")
 
 
 def enabled() -> bool:
@@ -82,11 +80,19 @@ def _points_hash(scheme: Any) -> str:
     return h.hexdigest()
 
 
+def _file_hash(params: Any) -> str | None:
+    if params.case != "file":
+        return None
+    with open(params.geometry.file, "rb") as f:
+        return hashlib.sha256(f.read()).hexdigest()
+
+
 def cache_key(device: Any, scheme: Any) -> str:
     """sha256 (hex) of a canonical JSON of everything the linearized prior of ``scheme`` depends on."""
     from gelcell.device import reuse_key
     params = device.params
-    data = {"format": CACHE_FORMAT, "mesh": meshcache.cache_key(params), "problem": reuse_key(params),
+    data = {"format": CACHE_FORMAT, "mesh": meshcache.cache_key(params), "geometry_file": _file_hash(params),
+            "problem": reuse_key(params),
             "interfaces": {"alpha_n": repr(device.alpha_n), "alpha_t": repr(device.alpha_t),
                            "gamma2": device.gamma2, "kappa": repr(device.kappa)},
             "scheme": {"type": scheme.scheme_name, "order": list(scheme.order),
@@ -97,7 +103,7 @@ def cache_key(device: Any, scheme: Any) -> str:
 
 
 def _cached(device: Any) -> bool:
-    return enabled() and device.params.case in CACHED_CASES and not device.transient
+    return enabled() and not device.transient
 
 
 def _path(device: Any, scheme: Any) -> str:

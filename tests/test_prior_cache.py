@@ -130,6 +130,26 @@ def test_the_device_default_has_the_prior_only_where_it_pays(cache, monkeypatch)
     assert small.linearized_prior is None and small.scheme.layout.size > 10
 
 
+def test_a_geometry_file_is_keyed_by_its_content(cache, shared_tmp_path):
+    """A user's device has the prior too; an edited file (here: its inflow speed) is another problem."""
+    source = open(os.path.join(os.path.dirname(__file__), "geometry_files", "small.geo")).read()
+    path = shared_tmp_path / "device.geo"
+    if COMM.rank == 0:
+        path.write_text(source)
+    COMM.Barrier()
+    p = CaseParameters.from_dict({"geometry": {"file": str(path)}})
+    first = solve(p)
+    assert first.prior_source == "computed" and entries(cache)[0].startswith("file-")
+    assert solve(p).prior_source == "disk cache"
+    edited = source.replace("uniform:0.5", "uniform:0.7")
+    assert edited != source
+    if COMM.rank == 0:
+        path.write_text(edited)
+    COMM.Barrier()
+    assert solve(CaseParameters.from_dict({"geometry": {"file": str(path)}})).prior_source == "computed"
+    assert len(entries(cache)) == 2
+
+
 def test_prune_keeps_the_most_recent_entries_within_the_byte_budget(tmp_path):
     pattern = re.compile(r"^shear-\d\.npz$")
     for i in range(5):
