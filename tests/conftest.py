@@ -50,6 +50,18 @@ def shared_tmp_path(tmp_path, comm):
 
 
 @pytest.fixture
+def empty_cache(shared_tmp_path, monkeypatch):
+    """``empty_cache(directory_variable, switch_variable)``: point a gelcell disk cache at an empty
+    directory, the same on every rank, with the cache enabled; returns the directory."""
+    def use(directory_variable: str, switch_variable: str) -> pathlib.Path:
+        path = shared_tmp_path / directory_variable.lower()
+        monkeypatch.setenv(directory_variable, str(path))
+        monkeypatch.delenv(switch_variable, raising=False)
+        return path
+    return use
+
+
+@pytest.fixture
 def cli_stderr(capsys, comm):
     """``cli_stderr()``: what the CLI printed on stderr since the last read, as rank 0 printed it.
 

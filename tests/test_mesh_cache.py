@@ -35,12 +35,9 @@ def coarse(case: str = "shear") -> CaseParameters:
 
 
 @pytest.fixture
-def cache(shared_tmp_path, monkeypatch):
+def cache(empty_cache):
     """An empty cache directory, the same on every rank, with the cache enabled."""
-    path = shared_tmp_path / "meshes"
-    monkeypatch.setenv("GELCELL_CACHE_DIR", str(path))
-    monkeypatch.delenv("GELCELL_MESH_CACHE", raising=False)
-    return path
+    return empty_cache("GELCELL_CACHE_DIR", "GELCELL_MESH_CACHE")
 
 
 @pytest.fixture

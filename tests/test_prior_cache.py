@@ -28,11 +28,8 @@ MESH = 3.0
 
 
 @pytest.fixture
-def cache(shared_tmp_path, monkeypatch):
-    path = shared_tmp_path / "priors"
-    monkeypatch.setenv("GELCELL_PRIOR_CACHE_DIR", str(path))
-    monkeypatch.delenv("GELCELL_PRIOR_CACHE", raising=False)
-    return path
+def cache(empty_cache):
+    return empty_cache("GELCELL_PRIOR_CACHE_DIR", "GELCELL_PRIOR_CACHE")
 
 
 def entries(path) -> list[str]:
