@@ -190,7 +190,7 @@ class LinearizedPrior:
         names = list(scheme.layout.names)
         z = _inner_variables(scheme) if scheme.serial and len(scheme.order) > 1 else None
         inner = sum(_size(scheme, n) for n in z) if z is not None else scheme.layout.size
-        self._check_memory(scheme.layout.size, min(inner, scheme.layout.size))
+        self.check_memory(scheme.layout.size, min(inner, scheme.layout.size))
         if z is not None and inner < scheme.layout.size:
             first = _sweep(scheme, [scheme.order[0]], _identity(scheme, names))
             dz = {n: first[n] if n in scheme._writes[scheme.order[0]] else {n: sp.identity(_size(scheme, n))}
@@ -219,8 +219,9 @@ class LinearizedPrior:
         return lu
 
     @staticmethod
-    def _check_memory(n: int, m: int) -> None:
-        """Refuse before allocating when the dense system would not fit (Linux: MemAvailable)."""
+    def check_memory(n: int, m: int) -> None:
+        """Refuse before allocating when the dense system of ``n`` unknowns (inner vector ``m``) would
+        not fit: MemoryError above half of MemAvailable (Linux; elsewhere no check)."""
         need = 8.0 * (2 * n * m + 3 * m * m) if m < n else 8.0 * 3 * n * n      # C, Z, I - Z C, LU (or A)
         try:
             with open("/proc/meminfo") as fh:

@@ -724,8 +724,8 @@ class Device:
         config.setdefault("record_data", record_data)
         chosen = self._default_prior(config)
         self.scheme = cp.build_scheme(chosen, self.participants, self.data, comm=self.comm)
-        if chosen is not config and self.scheme.layout.size > AUTO_PRIOR_MAX_UNKNOWNS:
-            chosen = config                             # too large to pay: the plain secant model
+        if chosen is not config and not self._prior_pays(self.scheme.layout.size):
+            chosen = config                             # the plain secant model
             self.scheme = cp.build_scheme(chosen, self.participants, self.data, comm=self.comm)
         self._choose_solve_paths(chosen)
         if reuse is not None:
@@ -748,6 +748,17 @@ class Device:
         prior = getattr(self.scheme.acceleration, "surrogate", None) if self.scheme is not None else None
         return prior if isinstance(prior, cp.LinearizedPrior) else None
 
+    def _prior_pays(self, unknowns: int) -> bool:
+        """Whether the default may use the linearized prior on this many interface unknowns: at most
+        :data:`AUTO_PRIOR_MAX_UNKNOWNS`, and its dense system fits in memory (the same decision on
+        every rank)."""
+        try:
+            cp.LinearizedPrior.check_memory(unknowns, unknowns)
+            fits = unknowns <= AUTO_PRIOR_MAX_UNKNOWNS
+        except MemoryError:
+            fits = False                               # an explicit jacobian_prior would say so, by name
+        return bool(self.comm.allreduce(fits, op=MPI.LAND))
+
     def _default_prior(self, config: dict) -> dict:
         """``config`` with the linearized prior where the device default has it (a new dict), else ``config``.
 
@@ -755,8 +766,8 @@ class Device:
         whose acceleration table sets neither ``jacobian_prior`` nor
         ``relaxation_prior``, with ``gamma2`` "schur" or "dirichlet" (the
         cell's Jacobian has no Robin-Neumann form), and at most
-        :data:`AUTO_PRIOR_MAX_UNKNOWNS` interface unknowns (checked by the
-        caller).  Its factorisation is then kept on disk
+        :data:`AUTO_PRIOR_MAX_UNKNOWNS` interface unknowns whose dense system
+        fits in memory (:meth:`_prior_pays`, checked by the caller).  Its factorisation is then kept on disk
         (:mod:`gelcell.priorcache`): computing it costs more than the
         iterations it saves in one run, loading it does not.
         """

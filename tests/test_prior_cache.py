@@ -122,9 +122,16 @@ def test_the_device_default_has_the_prior_only_where_it_pays(cache, monkeypatch)
     robin = Device(p, COMM, gamma2="robin")
     robin.solve(coupling_config(params=p), verbose=False)
     assert robin.result.converged and robin.linearized_prior is None
+    bound = device_module.AUTO_PRIOR_MAX_UNKNOWNS
     monkeypatch.setattr(device_module, "AUTO_PRIOR_MAX_UNKNOWNS", 10)
     small = solve(p)
     assert small.linearized_prior is None and small.scheme.layout.size > 10
+    monkeypatch.setattr(device_module, "AUTO_PRIOR_MAX_UNKNOWNS", bound)
+
+    def no_memory(n, m):
+        raise MemoryError("too large")
+    monkeypatch.setattr(device_module.cp.LinearizedPrior, "check_memory", staticmethod(no_memory))
+    assert solve(p).linearized_prior is None           # the default falls back; it does not fail
 
 
 def test_a_geometry_file_is_keyed_by_its_content(cache, shared_tmp_path):

@@ -147,6 +147,6 @@ def test_a_prior_too_large_for_the_memory_is_refused(monkeypatch):
 
     monkeypatch.setattr(builtins, "open", tiny_meminfo)
     with pytest.raises(MemoryError, match="jacobian_prior = 'none'"):
-        LinearizedPrior._check_memory(1000, 400)
+        LinearizedPrior.check_memory(1000, 400)
     monkeypatch.setattr(builtins, "open", real_open)
-    LinearizedPrior._check_memory(10, 4)          # a small system passes on this machine
+    LinearizedPrior.check_memory(10, 4)          # a small system passes on this machine
