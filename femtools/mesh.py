@@ -25,6 +25,7 @@ import ufl
 from dolfinx import cpp as _cpp
 from dolfinx.mesh import create_mesh, meshtags_from_entities
 
+from femtools import petscgarbage
 from femtools.gmshimport import import_gmsh
 
 __all__ = ["model_to_mesh", "model_to_region_mesh", "connected_components", "PARTITIONER", "ModelArrays",
@@ -189,6 +190,7 @@ def _model_mesh(model, comm: MPI.Comm, rank: int, region_tags, gdim: int):
     ctype = _cpp.mesh.to_type(str(domain.ufl_cell()))
     cells = cells[:, _cpp.io.perm_gmsh(ctype, nn)]
     msh = create_mesh(comm, cells, x[:, :gdim], domain, partitioner=PARTITIONER)
+    petscgarbage.keep(msh, comm)          # its communicator outlives the solvers' PETSc objects
     tdim = msh.topology.dim
 
     def tags(dim, entities_in, values_in, name):

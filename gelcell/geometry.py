@@ -44,6 +44,7 @@ from mpi4py import MPI
 
 from dolfinx import io as _io
 
+from femtools import petscgarbage
 from femtools.gmshimport import gmsh_session
 from femtools.mesh import ModelArrays, model_to_mesh, model_to_region_mesh
 from gelcell.parameters import CaseParameters
@@ -380,6 +381,7 @@ def build_device(params: CaseParameters, comm: MPI.Comm = MPI.COMM_WORLD, *,
         if name not in available:
             raise KeyError(f"region {name!r} not available (case {params.case!r}, "
                            f"with_cell={params.with_cell}: {available})")
+    petscgarbage.collect(comm)          # the PETSc objects of devices dropped since the last build
     arrays, error = None, None
     if comm.rank == 0:
         try:

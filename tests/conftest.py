@@ -7,7 +7,9 @@
 * ``tests/mpi_run.py`` (``run_mpi``) launches a script on N ranks from a serial
   test and returns the JSON it prints; this directory is put on ``sys.path`` so
   tests can ``from mpi_run import run_mpi``.
-* After each test every rank calls ``gc.collect()`` and meets at a barrier, so
+* After each test every rank calls ``gc.collect()``, destroys the dropped PETSc
+  objects of the meshes built by femtools (``femtools.petscgarbage``: petsc4py
+  leaves them on their communicator's garbage list) and meets at a barrier, so
   that PETSc objects are destroyed collectively (as dolfinx's own conftest does).
 """
 
@@ -19,6 +21,8 @@ import sys
 import pytest
 
 from mpi4py import MPI
+
+from femtools import petscgarbage
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
@@ -34,6 +38,7 @@ def pytest_runtest_setup(item):
 
 def pytest_runtest_teardown(item):
     gc.collect()
+    petscgarbage.collect(MPI.COMM_WORLD)      # the PETSc objects of the test's meshes (femtools.petscgarbage)
     MPI.COMM_WORLD.Barrier()
 
 
