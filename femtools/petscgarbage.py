@@ -41,14 +41,16 @@ def kept(comm: MPI.Comm) -> int:
     return sum(1 for c, _ in _kept if c == comm)
 
 
-def collect(comm: MPI.Comm) -> None:
+def collect(comm: MPI.Comm, collected: bool = False) -> None:
     """Collective over ``comm``: destroy the dropped PETSc objects of every kept mesh built on it (and
-    on any one-rank communicator), then forget the meshes that nothing but this module references."""
+    on any one-rank communicator), then forget the meshes that nothing but this module references.
+    ``collected``: the caller has just run ``gc.collect()``."""
     shared = [i for i, (c, _) in enumerate(_kept) if c == comm and c.Get_size() > 1]
     local = [i for i, (c, _) in enumerate(_kept) if c.Get_size() == 1]
     if not shared and not local:
         return
-    gc.collect()                                   # wrappers in reference cycles: into the garbage lists
+    if not collected:
+        gc.collect()                               # wrappers in reference cycles: into the garbage lists
     for i in shared + local:
         PETSc.garbage_cleanup(_kept[i][1].comm)
     # references: the list's tuple, getrefcount's argument

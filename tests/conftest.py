@@ -38,7 +38,7 @@ def pytest_runtest_setup(item):
 
 def pytest_runtest_teardown(item):
     gc.collect()
-    petscgarbage.collect(MPI.COMM_WORLD)      # the PETSc objects of the test's meshes (femtools.petscgarbage)
+    petscgarbage.collect(MPI.COMM_WORLD, collected=True)      # the PETSc objects of the test's meshes
     MPI.COMM_WORLD.Barrier()
 
 
