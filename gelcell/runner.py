@@ -319,7 +319,9 @@ def format_summary(summary: dict) -> str:
                          f"{cl['von_mises_strain'][1]:12.4e} {cl['von_mises_stress'][1]:12.4e}")
     c = summary.get("coupling")
     if c and "iterations" in c:
-        lines.append(f"coupling: {c['scheme']} / {c['acceleration']}, {c['iterations']} iterations, "
+        prior = (f" (linearized prior: {c['prior_source']})" if c.get("jacobian_prior") == "linearized"
+                 and c.get("prior_source") else "")
+        lines.append(f"coupling: {c['scheme']} / {c['acceleration']}{prior}, {c['iterations']} iterations, "
                      f"converged={c['converged']}")
     t = summary.get("timing", {})
     if t:
