@@ -669,6 +669,12 @@ class CouplingScheme:
                 raise KeyError(f"set_values: unknown data {name!r}; data: {list(self.data)}")
             self.values[name] = self._as_data_array(name, value, "set_values")
 
+    @property
+    def linearized_prior(self) -> LinearizedPrior | None:
+        """The acceleration's prior if it is a :class:`LinearizedPrior` (``jacobian_prior = "linearized"``)."""
+        prior = getattr(self.acceleration, "surrogate", None)
+        return prior if isinstance(prior, LinearizedPrior) else None
+
     def reuse_state(self, participants: bool = False) -> dict[str, Any]:
         """What a later solve with the same interface operator can reuse (a copy).
 
@@ -689,14 +695,14 @@ class CouplingScheme:
                     states[name] = self.participants[name].save_state()
                 except NotImplementedError:
                     states[name] = None
-        surrogate = getattr(self.acceleration, "surrogate", None)
+        prior = self.linearized_prior
         return {"data": list(self.data), "accelerated": list(self.accelerated),
                 "shapes": {n: list(v.shape) for n, v in self.values.items()},
                 "values": {n: v.copy() for n, v in self.values.items()},
                 "acceleration": copy.deepcopy(self.acceleration.state_dict()),
                 "participants": states,
                 # the linearized prior's factorisation: the same interface operator, so the same prior
-                "prior": surrogate.state() if isinstance(surrogate, LinearizedPrior) else None}
+                "prior": prior.state() if prior is not None else None}
 
     def load_reuse_state(self, state: Mapping[str, Any], *, values: bool = True,
                          acceleration: bool = True, participants: bool = True,
@@ -737,10 +743,9 @@ class CouplingScheme:
             acc = copy.deepcopy(state["acceleration"])
             _scale_acceleration_state(acc, self.layout, factors)
             self.acceleration.load_state_dict(acc)
-            surrogate = getattr(self.acceleration, "surrogate", None)
-            if isinstance(surrogate, LinearizedPrior) and state.get("prior") is not None \
-                    and all(f == 1.0 for f in factors.values()):
-                surrogate.load_state(state["prior"])
+            prior = self.linearized_prior
+            if prior is not None and state.get("prior") is not None and all(f == 1.0 for f in factors.values()):
+                prior.load_state(state["prior"])
         if participants:
             for name, pstate in (state.get("participants") or {}).items():
                 if name not in self.participants:

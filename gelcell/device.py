@@ -745,8 +745,7 @@ class Device:
     @property
     def linearized_prior(self) -> cp.LinearizedPrior | None:
         """The last solve's linearized prior, or None if it had none."""
-        prior = getattr(self.scheme.acceleration, "surrogate", None) if self.scheme is not None else None
-        return prior if isinstance(prior, cp.LinearizedPrior) else None
+        return self.scheme.linearized_prior if self.scheme is not None else None
 
     def _prior_pays(self, unknowns: int) -> bool:
         """Whether the default may use the linearized prior on this many interface unknowns: at most
