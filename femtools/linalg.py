@@ -52,7 +52,8 @@ MUMPS_ORDERINGS = {0: "AMD", 2: "AMF", 4: "PORD", 6: "QAMD", 7: "automatic"}
 #: AMF for all analyses faster (PORD calls clock(), a system call, at every
 #: elimination stage) but its elimination trees back-substitute more slowly: a
 #: time-dependent run, ~1100 back-substitutions per factorisation, took 1.11x as
-#: long (README "Performance")
+#: long (README "Performance").  Steady device runs, which factorise once and
+#: back-substitute a few times, ask for AMF (gelcell.device.STEADY_SOLVER_OPTIONS).
 DEFAULT_ORDERING = 7
 
 

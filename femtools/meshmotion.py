@@ -58,13 +58,15 @@ class MeshMotion:
         sliding: ``[(tags, component)]``: u_m[component] = 0 (symmetry lines).
         name: solver name (PETSc prefixes).
         quadrature_degree: of the integral (the monolithic reference must use the same).
+        petsc_options: options of its direct solver (``femtools.linalg.DirectSolver``).
 
     Every other exterior facet is held (u_m = 0).  Where boundaries meet,
     the sliding and held conditions win over the data.
     """
 
     def __init__(self, V: fem.FunctionSpace, facet_tags, moving: typing.Mapping[str, typing.Any],
-                 sliding: typing.Sequence = (), name: str = "mesh_motion", quadrature_degree: int = 4):
+                 sliding: typing.Sequence = (), name: str = "mesh_motion", quadrature_degree: int = 4,
+                 petsc_options: dict | None = None):
         msh = settle_coordinate_element(V.mesh)      # before any form (femtools.mesh)
         fdim = msh.topology.dim - 1
         msh.topology.create_connectivity(fdim, msh.topology.dim)
@@ -97,7 +99,7 @@ class MeshMotion:
         dx = quadrature_measure("dx", msh, degree=quadrature_degree)
         zero = fem.Constant(msh, PETSc.ScalarType((0.0, 0.0)))
         self.solver = LinearSolver(harmonic_residual(u, z, dx), ufl.inner(zero, z) * dx,
-                                   self.displacement, bcs, name=name)
+                                   self.displacement, bcs, name=name, petsc_options=petsc_options)
         self.current = True     # the displacement is the extension of the current data
 
     def set_displacement(self, key: str, values: np.ndarray) -> None:

@@ -128,7 +128,7 @@ class MovingStokesSolver(StokesSolver):
             partitioned run) the remainder converges with the coupling.
             Default: the exact path.
 
-    Mesh motion (``femtools.meshmotion.MeshMotion``): data on the interfaces
+    Mesh motion (``femtools.meshmotion.MeshMotion``, with the same ``petsc_options``): data on the interfaces
     and ``mesh_boundaries``, sliding on the ``component_bcs`` boundaries
     (symmetry lines: the component they fix is held), held on every other
     boundary.
@@ -150,7 +150,8 @@ class MovingStokesSolver(StokesSolver):
         self.mesh_space = fem.VectorFunctionSpace(mesh, ("Lagrange", 2))
         self.motion = MeshMotion(self.mesh_space, facet_tags, moving, sliding,
                                  name=f"{kwargs.get('name', 'fluid')}_mesh_motion",
-                                 quadrature_degree=kwargs.get("quadrature_degree", 4))
+                                 quadrature_degree=kwargs.get("quadrature_degree", 4),
+                                 petsc_options=kwargs.get("petsc_options"))
         self.mesh_displacement = self.motion.displacement
         self._mesh_boundaries = set(mesh_boundaries or {})
         self._flux = {}
