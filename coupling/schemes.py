@@ -705,7 +705,7 @@ class CouplingScheme:
                 "prior": prior.state() if prior is not None else None}
 
     def load_reuse_state(self, state: Mapping[str, Any], *, values: bool = True,
-                         acceleration: bool = True, participants: bool = True,
+                         acceleration: bool = True, prior: bool = True, participants: bool = True,
                          scale: Mapping[str, float] | None = None) -> None:
         """Start from a :meth:`reuse_state` of a related problem (same data, same interface operator).
 
@@ -713,6 +713,8 @@ class CouplingScheme:
             state: The exported state.
             values: Take its data values as the initial guess.
             acceleration: Take its quasi-Newton information (columns, weights).
+            prior: Take its linearized prior's factorisation, if both schemes have
+                one (not with ``scale``: the prior is in the old units).
             participants: Load the participant states it holds (``load_state``),
                 if any; they must fit this scheme's participants (same
                 discretisation).  Not rescaled.
@@ -743,9 +745,10 @@ class CouplingScheme:
             acc = copy.deepcopy(state["acceleration"])
             _scale_acceleration_state(acc, self.layout, factors)
             self.acceleration.load_state_dict(acc)
-            prior = self.linearized_prior
-            if prior is not None and state.get("prior") is not None and all(f == 1.0 for f in factors.values()):
-                prior.load_state(state["prior"])
+        linearized = self.linearized_prior
+        if prior and linearized is not None and state.get("prior") is not None \
+                and all(f == 1.0 for f in factors.values()):
+            linearized.load_state(state["prior"])
         if participants:
             for name, pstate in (state.get("participants") or {}).items():
                 if name not in self.participants:

@@ -150,3 +150,29 @@ def test_a_prior_too_large_for_the_memory_is_refused(monkeypatch):
         LinearizedPrior.check_memory(1000, 400)
     monkeypatch.setattr(builtins, "open", real_open)
     LinearizedPrior.check_memory(10, 4)          # a small system passes on this machine
+
+
+def test_reuse_takes_the_prior_with_or_without_the_secant_columns():
+    """``load_reuse_state(acceleration=False)`` still takes the prior's factorisation (a Ca sweep under
+    the prior: its columns model the Ca-dependent remainder); ``prior=False`` leaves it to be computed."""
+    problem = affine_pair_problem(n=6)
+    participants, data = problem.build()
+    first = build_scheme(_config("serial", problem, time_windows_reused=1), participants, data)
+    assert first.solve().converged
+    kept = first.acceleration.columns[0].shape[1]
+    assert kept > 0
+    state = first.reuse_state()
+    for acceleration, prior in ((False, True), (True, False)):
+        participants, data = problem.build()
+        sch = build_scheme(_config("serial", problem, time_windows_reused=1), participants, data)
+        sch.load_reuse_state(state, acceleration=acceleration, prior=prior)
+        if prior:
+            assert sch.linearized_prior.state()["lu"] is first.linearized_prior.state()["lu"]
+        else:
+            assert sch.linearized_prior.state() is None
+        assert sch.acceleration.columns[0].shape[1] == (kept if acceleration else 0)
+        result = sch.solve()
+        # from the converged values: one sweep confirms them
+        assert result.converged and result.iterations == 1
+        for name, exact in problem.exact.items():
+            assert np.allclose(sch.latest(name), exact, rtol=1e-9, atol=1e-12 * np.abs(exact).max())
