@@ -105,7 +105,9 @@ def study_methods(quick: bool = False) -> list[Method]:
                 Method("none dirichlet gamma2", "serial", {"type": "none"}, gamma2="dirichlet"),
                 Method("aitken", "serial", {"type": "aitken", "initial_relaxation": 0.5}),
                 Method("iqn-ils", "serial", iqn),
-                Method("iqn-ils", "parallel", iqn)]
+                Method("iqn-ils", "parallel", iqn),
+                # the device default (where it pays, gelcell.device._default_prior)
+                Method("iqn-ils linearized prior", "serial", {**iqn, "jacobian_prior": "linearized"})]
     accelerations = [
         ("none", {"type": "none"}),
         ("constant 0.5", {"type": "constant", "relaxation": 0.5}),
