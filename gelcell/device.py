@@ -240,7 +240,7 @@ def coupling_config(scheme: str = "serial", acceleration: str = "iqn-ils", *, li
     (:func:`default_relaxation_prior`; it is derived for that split; the default
     ``"schur"`` has no Gamma2 amplification to relax), and the secant columns of the
     last 4 solves are kept (``time_windows_reused``; no effect on one solve,
-    reused by a Ca sweep, see ``Device.solve(reuse=...)``).
+    reused by a Ca sweep without the linearized prior, see ``Device.solve(reuse=...)``).
     ``jacobian_prior="linearized"`` (IQN): the prior of the quasi-Newton step
     is the Newton step on the coupled map linearised at rest from the three
     solvers' interface Jacobians (``coupling.linearization``; each

@@ -9,8 +9,10 @@ Reuse (``--param ca``).  In the solver's units (stress Ca mu_s, displacement
 Ca L0) every value of a Ca sweep is the same coupled problem up to the
 strain-sized nonlinearity (gelcell.device.reuse_key).  Each value after the
 first therefore starts from the previous values' interface data and field
-states extrapolated in Ca, with their quasi-Newton columns
-(gelcell.runner.ReuseStore); sweep.csv records ``iterations`` and ``reused``.
+states extrapolated in Ca (gelcell.runner.ReuseStore), with the linearized
+prior's factorisation under the prior (the default) and the quasi-Newton
+columns otherwise (gelcell.device.Device.solve); sweep.csv records
+``iterations`` and ``reused``.
 Other sweeps change the interface operator and start from rest.
 
 Beyond linearity (``--param ca``).  At fixed moduli Ca sets the flow speed;
@@ -120,7 +122,7 @@ def run_sweep(cases: list[CaseParameters], param: str, values: list[float], out:
     final = os.path.abspath(out)
     rows, failures = [], []
     # one store per kinematics path: consecutive values of the same scaled problem (a Ca sweep) reuse the
-    # previous value's interface data and quasi-Newton columns (gelcell.runner.solve_partitioned)
+    # previous values' interface data and the prior or the quasi-Newton columns (gelcell.runner.solve_partitioned)
     stores: dict[str, ReuseStore] = {}
     with atomic_directory(out, comm) as tmp:
         for value, params in zip(values, cases):
