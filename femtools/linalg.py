@@ -79,6 +79,18 @@ def _check_kind(kind: str) -> None:
         raise ValueError(f"kind must be 'lu' or 'cholesky' (LDL^T of a symmetric matrix), got {kind!r}")
 
 
+def _with_more_workspace(attempt, icntl14: int):
+    """``attempt(0, icntl14)``; while MUMPS asks for more workspace (:attr:`DirectSolver.WORKSPACE_ERRORS`),
+    up to three times, ``attempt(k, icntl14)`` again with ICNTL(14) = 2 icntl14 + 100."""
+    for retry in range(4):
+        try:
+            return attempt(retry, icntl14)
+        except FactorizationError as exc:
+            if retry == 3 or exc.infog1 not in DirectSolver.WORKSPACE_ERRORS:
+                raise
+            icntl14 = 2 * icntl14 + 100
+
+
 class DirectSolver:
     """LU or LDL^T factorisation (MUMPS by default) of one operator, reused for many right-hand sides.
 
@@ -172,16 +184,14 @@ class DirectSolver:
 
     def factorize(self) -> None:
         """(Re)factorise the current operator (with more workspace, up to three times, if MUMPS asks)."""
-        for attempt in range(4):
-            try:
-                return self._factorize()
-            except FactorizationError as exc:
-                if attempt == 3 or exc.infog1 not in self.WORKSPACE_ERRORS:
-                    raise
-                self.icntl[14] = 2 * self.icntl.get(14, 20) + 100
+        def attempt(retry: int, icntl14: int) -> None:
+            if retry:                       # start again from the operator, with the larger workspace
+                self.icntl[14] = icntl14
                 A = self.ksp.getOperators()[0]
                 self.ksp.reset()
                 self.ksp.setOperators(A)
+            self._factorize()
+        _with_more_workspace(attempt, self.icntl.get(14, 20))
 
     def _factorize(self) -> None:
         pc = self.ksp.getPC()
@@ -921,14 +931,7 @@ def schur_complement(K: "scipy.sparse.spmatrix", keep: np.ndarray) -> np.ndarray
     if keep.size == 0:
         return np.zeros((0, 0))
     K = K.tocsr()
-    icntl14 = DEFAULT_ICNTL[14]
-    for attempt in range(4):
-        try:
-            return _schur_complement(K, keep, icntl14)
-        except FactorizationError as exc:
-            if attempt == 3 or exc.infog1 not in DirectSolver.WORKSPACE_ERRORS:
-                raise
-            icntl14 = 2 * icntl14 + 100
+    return _with_more_workspace(lambda retry, icntl14: _schur_complement(K, keep, icntl14), DEFAULT_ICNTL[14])
 
 
 def _schur_complement(K: "scipy.sparse.csr_matrix", keep: np.ndarray, icntl14: int) -> np.ndarray:
