@@ -100,6 +100,8 @@ def study_methods(quick: bool = False) -> list[Method]:
     # the secant model alone (the device default adds the linearized prior where it pays: those rows below)
     iqn = {"type": "iqn-ils", "initial_relaxation": 0.5, "max_used_iterations": 100,
            "filter": {"type": "qr2", "limit": 1e-3}, "jacobian_prior": "none"}
+    # the Newton step on the map linearised from the solvers' interface Jacobians (docs/coupling.md)
+    linearized = {**iqn, "jacobian_prior": "linearized"}
     if quick:
         return [Method("none", "serial", {"type": "none"}),
                 Method("none dirichlet gamma2", "serial", {"type": "none"}, gamma2="dirichlet"),
@@ -107,7 +109,7 @@ def study_methods(quick: bool = False) -> list[Method]:
                 Method("iqn-ils", "serial", iqn),
                 Method("iqn-ils", "parallel", iqn),
                 # the device default (where it pays, gelcell.device._default_prior)
-                Method("iqn-ils linearized prior", "serial", {**iqn, "jacobian_prior": "linearized"})]
+                Method("iqn-ils linearized prior", "serial", linearized)]
     accelerations = [
         ("none", {"type": "none"}),
         ("constant 0.5", {"type": "constant", "relaxation": 0.5}),
@@ -130,9 +132,7 @@ def study_methods(quick: bool = False) -> list[Method]:
                        gamma2="dirichlet"),
                 Method("iqn-ils robin gamma2", "serial", iqn, gamma2="robin"),
                 Method("aitken robin gamma2", "serial", aitken, gamma2="robin")]
-    # the linearized prior: the Newton step on the map linearised from the solvers' interface Jacobians
-    # (docs/coupling.md), on both schemes and on plain Dirichlet-Neumann (instead of its relaxation prior)
-    linearized = {**iqn, "jacobian_prior": "linearized"}
+    # the linearized prior on both schemes and on plain Dirichlet-Neumann (instead of its relaxation prior)
     methods += [Method("iqn-ils linearized prior", "serial", linearized),
                 Method("iqn-ils linearized prior", "parallel", linearized),
                 Method("iqn-ils dirichlet gamma2 linearized prior", "serial", {**linearized, "relaxation_prior": {}},
