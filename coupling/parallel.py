@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["SerialComm", "default_comm", "gather_rows", "scatter_rows", "is_root"]
+__all__ = ["SerialComm", "default_comm", "gather_rows", "scatter_rows"]
 
 
 class SerialComm:
@@ -70,11 +70,6 @@ def default_comm() -> Any:
     except ImportError:
         return SerialComm()
     return MPI.COMM_WORLD
-
-
-def is_root(comm: Any) -> bool:
-    """True on rank 0 of ``comm`` (and always for :class:`SerialComm`)."""
-    return comm.Get_rank() == 0
 
 
 def gather_rows(comm: Any, global_ids: np.ndarray, local_values: np.ndarray,

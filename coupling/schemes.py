@@ -266,11 +266,6 @@ class CouplingScheme:
         return measures
 
     # ------------------------------------------------------------------ helpers
-    @property
-    def forward(self) -> tuple[str, ...]:
-        """Data not in the fixed-point vector (serial schemes: read after written)."""
-        return tuple(n for n in self.data if n not in self.accelerated)
-
     def latest(self, data_name: str) -> np.ndarray:
         """Latest value of a data on its writer's points (a copy), shape ``(N, dim)``."""
         if data_name not in self.data:

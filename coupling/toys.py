@@ -60,13 +60,11 @@ class AffineParticipant(Participant):
         self.n = n
         self.matrices = {k: np.array(v, dtype=float) for k, v in matrices.items()}
         self.offsets = {k: np.array(v, dtype=float).reshape(n) for k, v in offsets.items()}
-        self.solves = 0
 
     def interface_points(self, mesh_name: str) -> np.ndarray:
         return np.arange(self.n, dtype=float)[:, None]
 
     def solve(self, inputs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        self.solves += 1
         out = {}
         for written, b in self.offsets.items():
             value = b.copy()
@@ -122,7 +120,6 @@ class ElasticBar(Participant):
         self.a, self.b = float(a), float(b)
         self.k, self.f = float(stiffness), float(load)
         self.left, self.right = left, right
-        self.solves = 0
 
     def interface_points(self, mesh_name: str) -> np.ndarray:
         for end, x in ((self.left, self.a), (self.right, self.b)):
@@ -131,7 +128,6 @@ class ElasticBar(Participant):
         raise KeyError(f"bar {self.name!r} has no interface {mesh_name!r}")
 
     def solve(self, inputs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        self.solves += 1
         length, k, f = self.b - self.a, self.k, self.f
         rows, rhs = [], []
         for end, xi in ((self.left, 0.0), (self.right, length)):
@@ -155,14 +151,12 @@ class ElasticBar(Participant):
         """d(written end value)/d(read end value): the bar is affine, so one unit difference is exact."""
         ends = [e for e in (self.left, self.right) if e.kind != "fixed"]
         zero = {e.read: np.zeros((1, 1)) for e in ends}
-        solves = self.solves
         base = self.solve(zero)
         out = {}
         for e in ends:
             moved = self.solve({**zero, e.read: np.ones((1, 1))})
             for w in base:
                 out[(w, e.read)] = moved[w] - base[w]
-        self.solves = solves          # these are not coupling solves
         return out
 
 
@@ -238,7 +232,6 @@ class LinearOdeParticipant(Participant):
         self.u_old = self.u.copy()
         self.t_new = 0.0
         self.dt = 1.0
-        self.solves = 0
 
     def interface_points(self, mesh_name: str) -> np.ndarray:
         return np.arange(self.u.size, dtype=float)[:, None]
@@ -258,7 +251,6 @@ class LinearOdeParticipant(Participant):
         return self.u0[:, None].copy()
 
     def solve(self, inputs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        self.solves += 1
         m = self.u.size
         lhs = np.eye(m) / self.dt + self.stiffness(self.t_new)
         rhs = self.u_old / self.dt + self.coupling @ inputs[self.read].reshape(m) + self.source(self.t_new)
