@@ -123,32 +123,14 @@ class CouplingScheme:
         self._reads = {p: [d.name for d in self.data.values() if p in d.readers] for p in self.order}
         self._writes = {p: [d.name for d in self.data.values() if d.writer == p] for p in self.order}
         self._points: dict[tuple[str, str], np.ndarray] = {}
-        self._mappings: dict[tuple[str, str], DataMapping] = {}
-        for d in self.data.values():
-            writer_points = self.points(d.writer, d.mesh)
-            for reader in d.readers:
-                self._mappings[(d.name, reader)] = build_mapping(
-                    d.mapping, writer_points, self.points(reader, d.mesh), data_name=d.name,
-                    reader=reader, curve=d.curve, curve_order=d.curve_order)
+        self._mappings = self._build_mappings()
         self.values: dict[str, np.ndarray] = {name: self._initial_value(d)
                                               for name, d in self.data.items()}
         self.accelerated = self._accelerated_data()
         self.layout = VectorLayout(self.accelerated,
                                    [self.values[n].shape for n in self.accelerated])
         self.acceleration: Acceleration = build_acceleration(self.config.acceleration, self.layout)
-        if self.config.acceleration.jacobian_prior == "linearized":
-            if surrogate is not None:
-                raise ValueError("coupling.acceleration.jacobian_prior = 'linearized' is itself the prior: "
-                                 "do not pass a surrogate as well")
-            # the participants' linearisations, composed along this scheme's sweep (coupling.linearization)
-            surrogate = LinearizedPrior(self)
-        if surrogate is not None:
-            if not hasattr(self.acceleration, "surrogate"):
-                raise ValueError(f"a surrogate needs a quasi-Newton acceleration (iqn-ils, iqn-imvj), "
-                                 f"not {self.config.acceleration.type!r}")
-            if not callable(getattr(surrogate, "inverse_jacobian", None)):
-                raise TypeError("surrogate must have a method inverse_jacobian(r)")
-            self.acceleration.surrogate = surrogate
+        self._attach_prior(surrogate)
         self.measures = self._build_measures()
         self.time = 0.0
         self.window = 0
@@ -206,6 +188,33 @@ class CouplingScheme:
         if not out:
             raise ValueError("build_scheme: no coupling data given")
         return out
+
+    def _build_mappings(self) -> dict[tuple[str, str], DataMapping]:
+        """The mapping of every data to each of its readers, between the participants' points."""
+        mappings: dict[tuple[str, str], DataMapping] = {}
+        for d in self.data.values():
+            writer_points = self.points(d.writer, d.mesh)
+            for reader in d.readers:
+                mappings[(d.name, reader)] = build_mapping(
+                    d.mapping, writer_points, self.points(reader, d.mesh), data_name=d.name,
+                    reader=reader, curve=d.curve, curve_order=d.curve_order)
+        return mappings
+
+    def _attach_prior(self, surrogate: Any) -> None:
+        """Give the quasi-Newton acceleration its prior: the linearized one, or the ``surrogate``."""
+        if self.config.acceleration.jacobian_prior == "linearized":
+            if surrogate is not None:
+                raise ValueError("coupling.acceleration.jacobian_prior = 'linearized' is itself the prior: "
+                                 "do not pass a surrogate as well")
+            # the participants' linearisations, composed along this scheme's sweep (coupling.linearization)
+            surrogate = LinearizedPrior(self)
+        if surrogate is not None:
+            if not hasattr(self.acceleration, "surrogate"):
+                raise ValueError(f"a surrogate needs a quasi-Newton acceleration (iqn-ils, iqn-imvj), "
+                                 f"not {self.config.acceleration.type!r}")
+            if not callable(getattr(surrogate, "inverse_jacobian", None)):
+                raise TypeError("surrogate must have a method inverse_jacobian(r)")
+            self.acceleration.surrogate = surrogate
 
     def points(self, participant: str, mesh: str) -> np.ndarray:
         """The interface points of ``participant`` on ``mesh`` (cached, read-only copy)."""
@@ -436,18 +445,12 @@ class CouplingScheme:
         self.window_ends = (self.window_ends + [(t_end, {n: v.copy() for n, v in self.values.items()})])[-kept:]
 
     def _run_window(self, t: float | None, dt: float | None) -> WindowRecord:
+        """Iterate one time window (``t is None``: a steady solve) until its status ends it."""
         transient = t is not None
         rec = WindowRecord(window=self.window, time=t, dt=dt)
         if transient:
-            if not self.window_ends:
-                self._window_end(t)            # the initial values belong to the start time
-            self._extrapolate(t, dt)
-        states: dict[str, Any] = {}
-        if transient and self.implicit and (self.config.state_reload == "iteration" or self.recording is not None):
-            for name in self.order:
-                states[name] = self._call(name, "save_state")
-                if self.recording is not None:
-                    self.recording.checkpoints[(self.window, name)] = states[name]
+            self._initial_guess(t, dt)
+        states = self._save_window_states(transient)
         x = self.layout.concat(self.values)
         first_r: dict[str, float] = {}
         first_v: dict[str, float] = {}
@@ -457,10 +460,7 @@ class CouplingScheme:
             try:
                 solve_time = self._sweep(self.window, k, t, dt, states)
             except _ParticipantFailure as failure:
-                rec.reason = (f"diverged: participant {failure.participant!r} failed in iteration "
-                              f"{failure.iteration} ({type(failure.error).__name__}: {failure.error})")
-                rec.participant_error = failure.error     # the cause of the CouplingDivergedError
-                self._print(f"it {k:3d}  participant {failure.participant!r} FAILED: {failure.error}")
+                self._participant_failed(rec, k, failure)
                 return rec
             rnorm = {n: float(np.linalg.norm(self.values[n] - before[n])) for n in self.data}
             vnorm = {n: float(np.linalg.norm(self.values[n])) for n in self.data}
@@ -476,45 +476,74 @@ class CouplingScheme:
             status = self._status(k, evals, rnorm, vnorm, first_r, first_v)
             if self.comm.Get_size() > 1:
                 status = self.comm.bcast(status, root=0)
-            if status == "explicit":
-                itrec.converged = True
-                rec.converged, rec.reason = True, "explicit"
-                self._print(format_progress(itrec, transient))
-                break
-            if status == "converged":
-                itrec.converged = True
-                rec.converged, rec.reason = True, "converged"
-                self.acceleration.window_converged(x, self.layout.concat(self.values))
-                rec.columns_dropped_at_end = self.acceleration.window_info.columns_dropped
-                rec.columns_kept = self.acceleration.columns[0].shape[1]
-                self._print(format_progress(itrec, transient))
-                break
-            if status.startswith("diverged"):
-                rec.reason = status
-                self._print(format_progress(itrec, transient) + "  DIVERGED")
+            if status != "continue" or k == max_iterations:
+                self._end_window(rec, itrec, status, x, transient)
                 return rec
-            if k == max_iterations:
-                rec.reason = "max_iterations"
-                self._print(format_progress(itrec, transient) + "  max iterations reached")
-                if self.config.on_max_iterations == "continue":
-                    self.acceleration.window_converged(x, self.layout.concat(self.values))
-                    rec.columns_dropped_at_end = self.acceleration.window_info.columns_dropped
-                    rec.columns_kept = self.acceleration.columns[0].shape[1]
-                return rec
-            x_tilde = self.layout.concat(self.values)
-            x_next = self.acceleration.compute(x, x_tilde)
-            if self.comm.Get_size() > 1:
-                x_next = np.ascontiguousarray(x_next, dtype=float)
-                self.comm.Bcast(x_next, root=0)
-            info = self.acceleration.info
-            itrec.relaxation = info.relaxation
-            itrec.columns_used = info.columns_used
-            itrec.columns_filtered = info.columns_filtered
-            itrec.columns_dropped = info.columns_dropped
-            self._print(format_progress(itrec, transient))
-            self.values.update(self.layout.split(x_next))
-            x = x_next
+            x = self._accelerate(x, itrec, transient)
         return rec
+
+    def _initial_guess(self, t: float, dt: float) -> None:
+        """Extrapolate the values from the last windows' ends (the initial values are the start time's)."""
+        if not self.window_ends:
+            self._window_end(t)
+        self._extrapolate(t, dt)
+
+    def _save_window_states(self, transient: bool) -> dict[str, Any]:
+        """Every participant's state at the window start, if it is restored or recorded."""
+        states: dict[str, Any] = {}
+        if transient and self.implicit and (self.config.state_reload == "iteration" or self.recording is not None):
+            for name in self.order:
+                states[name] = self._call(name, "save_state")
+                if self.recording is not None:
+                    self.recording.checkpoints[(self.window, name)] = states[name]
+        return states
+
+    def _participant_failed(self, rec: WindowRecord, k: int, failure: _ParticipantFailure) -> None:
+        """End the window as diverged because a participant's solve raised in iteration ``k``."""
+        rec.reason = (f"diverged: participant {failure.participant!r} failed in iteration "
+                      f"{failure.iteration} ({type(failure.error).__name__}: {failure.error})")
+        rec.participant_error = failure.error     # the cause of the CouplingDivergedError
+        self._print(f"it {k:3d}  participant {failure.participant!r} FAILED: {failure.error}")
+
+    def _end_window(self, rec: WindowRecord, itrec: IterationRecord, status: str, x: np.ndarray,
+                    transient: bool) -> None:
+        """Close the window on its last iteration: converged, explicit, diverged or out of iterations."""
+        if status.startswith("diverged"):
+            rec.reason = status
+            self._print(format_progress(itrec, transient) + "  DIVERGED")
+        elif status == "continue":
+            rec.reason = "max_iterations"
+            self._print(format_progress(itrec, transient) + "  max iterations reached")
+            if self.config.on_max_iterations == "continue":
+                self._close_acceleration_window(rec, x)
+        else:
+            itrec.converged = True
+            rec.converged, rec.reason = True, status
+            if status == "converged":
+                self._close_acceleration_window(rec, x)
+            self._print(format_progress(itrec, transient))
+
+    def _close_acceleration_window(self, rec: WindowRecord, x: np.ndarray) -> None:
+        """Give the acceleration the window's last iterate; record the columns it keeps and drops."""
+        self.acceleration.window_converged(x, self.layout.concat(self.values))
+        rec.columns_dropped_at_end = self.acceleration.window_info.columns_dropped
+        rec.columns_kept = self.acceleration.columns[0].shape[1]
+
+    def _accelerate(self, x: np.ndarray, itrec: IterationRecord, transient: bool) -> np.ndarray:
+        """The next iterate (rank 0's on every rank), which becomes the current values."""
+        x_tilde = self.layout.concat(self.values)
+        x_next = self.acceleration.compute(x, x_tilde)
+        if self.comm.Get_size() > 1:
+            x_next = np.ascontiguousarray(x_next, dtype=float)
+            self.comm.Bcast(x_next, root=0)
+        info = self.acceleration.info
+        itrec.relaxation = info.relaxation
+        itrec.columns_used = info.columns_used
+        itrec.columns_filtered = info.columns_filtered
+        itrec.columns_dropped = info.columns_dropped
+        self._print(format_progress(itrec, transient))
+        self.values.update(self.layout.split(x_next))
+        return x_next
 
     def _status(self, k: int, evals: list[MeasureValue], rnorm: dict[str, float],
                 vnorm: dict[str, float], first_r: dict[str, float],
@@ -721,18 +750,8 @@ class CouplingScheme:
         Raises:
             ValueError: If the data (names, shapes, accelerated set) differ.
         """
-        shapes = {n: list(v.shape) for n, v in self.values.items()}
-        if list(state["data"]) != list(self.data) or list(state["accelerated"]) != list(self.accelerated) \
-                or {n: list(s) for n, s in state["shapes"].items()} != shapes:
-            raise ValueError(f"load_reuse_state: the state belongs to other data ({state['data']}, "
-                             f"shapes {state['shapes']}); this scheme has {list(self.data)}, shapes {shapes}")
-        factors = {n: 1.0 for n in self.data}
-        for name, f in (scale or {}).items():
-            if name not in self.data:
-                raise KeyError(f"load_reuse_state: scale names unknown data {name!r}")
-            if not (math.isfinite(float(f)) and float(f) != 0.0):
-                raise ValueError(f"load_reuse_state: scale[{name!r}] = {f!r} must be finite and nonzero")
-            factors[name] = float(f)
+        self._check_reuse_state(state)
+        factors = self._scale_factors(scale)
         if values:
             self.values = {n: factors[n] * np.asarray(state["values"][n], dtype=float).copy()
                            for n in self.data}
@@ -750,6 +769,25 @@ class CouplingScheme:
                     raise ValueError(f"load_reuse_state: state of unknown participant {name!r}")
                 if pstate is not None:
                     self._call(name, "load_state", pstate)
+
+    def _check_reuse_state(self, state: Mapping[str, Any]) -> None:
+        """Refuse a :meth:`reuse_state` of other data (names, accelerated set or shapes)."""
+        shapes = {n: list(v.shape) for n, v in self.values.items()}
+        if list(state["data"]) != list(self.data) or list(state["accelerated"]) != list(self.accelerated) \
+                or {n: list(s) for n, s in state["shapes"].items()} != shapes:
+            raise ValueError(f"load_reuse_state: the state belongs to other data ({state['data']}, "
+                             f"shapes {state['shapes']}); this scheme has {list(self.data)}, shapes {shapes}")
+
+    def _scale_factors(self, scale: Mapping[str, float] | None) -> dict[str, float]:
+        """Data name -> factor of :meth:`load_reuse_state`'s ``scale`` (1 for data not named)."""
+        factors = {n: 1.0 for n in self.data}
+        for name, f in (scale or {}).items():
+            if name not in self.data:
+                raise KeyError(f"load_reuse_state: scale names unknown data {name!r}")
+            if not (math.isfinite(float(f)) and float(f) != 0.0):
+                raise ValueError(f"load_reuse_state: scale[{name!r}] = {f!r} must be finite and nonzero")
+            factors[name] = float(f)
+        return factors
 
     # ------------------------------------------------------------------ records
     def write_records(self, directory: str | os.PathLike) -> dict[str, str]:
