@@ -175,22 +175,10 @@ def order_along_curve(points: np.ndarray, curve: str = "auto", order: str = "cha
         raise ValueError(f"{what}: curve = {curve!r} is not allowed; allowed: 'auto', 'open', 'closed'")
     if n == 1:
         return np.zeros(1, dtype=np.int64), False
+    if order == "angle":
+        return _angle_order(pts, curve, what)
     if order == "given":
         perm = np.arange(n)
-    elif order == "angle":
-        if pts.shape[1] != 2:
-            raise ValueError(f"{what}: curve_order = 'angle' needs 2-D points, got "
-                             f"space_dim = {pts.shape[1]}")
-        centre = pts.mean(axis=0)
-        angle = np.arctan2(pts[:, 1] - centre[1], pts[:, 0] - centre[0])
-        perm = np.argsort(angle, kind="stable")
-        if curve == "open":
-            sorted_angle = angle[perm]
-            gaps = np.diff(np.concatenate([sorted_angle, [sorted_angle[0] + 2.0 * np.pi]]))
-            cut = int(np.argmax(gaps))
-            perm = np.roll(perm, -(cut + 1))
-            return perm, False
-        return perm, True
     elif order == "chain":
         end = _greedy_chain(pts, 0)[-1]
         perm = _greedy_chain(pts, int(end))
@@ -209,6 +197,23 @@ def order_along_curve(points: np.ndarray, curve: str = "auto", order: str = "cha
     if order == "chain" and n >= 3:
         _check_chain(ordered, steps, closing, closed, what)
     return perm, closed
+
+
+def _angle_order(pts: np.ndarray, curve: str, what: str) -> tuple[np.ndarray, bool]:
+    """:func:`order_along_curve` by polar angle about the centroid (an open curve is cut at the largest gap)."""
+    if pts.shape[1] != 2:
+        raise ValueError(f"{what}: curve_order = 'angle' needs 2-D points, got "
+                         f"space_dim = {pts.shape[1]}")
+    centre = pts.mean(axis=0)
+    angle = np.arctan2(pts[:, 1] - centre[1], pts[:, 0] - centre[0])
+    perm = np.argsort(angle, kind="stable")
+    if curve == "open":
+        sorted_angle = angle[perm]
+        gaps = np.diff(np.concatenate([sorted_angle, [sorted_angle[0] + 2.0 * np.pi]]))
+        cut = int(np.argmax(gaps))
+        perm = np.roll(perm, -(cut + 1))
+        return perm, False
+    return perm, True
 
 
 def polyline_interpolation_matrix(nodes: np.ndarray, closed: bool,
@@ -239,7 +244,24 @@ def polyline_interpolation_matrix(nodes: np.ndarray, closed: bool,
     n_segments = m if (closed and m >= 3) else m - 1
     seg_start = np.arange(n_segments)
     seg_end = (seg_start + 1) % m
-    # segments incident to each node: i - 1 and i (wrapped for closed curves)
+    left, right = _incident_segments(m, n_segments)
+    k = min(m, 8)
+    _, near = cKDTree(nodes).query(queries, k=k)
+    near = near.reshape(nq, k)
+    candidates = np.concatenate([left[near], right[near]], axis=1)  # (nq, 2k)
+    best, tb = _nearest_projection(nodes[seg_start[candidates]], nodes[seg_end[candidates]], queries)
+    rows = np.arange(nq)
+    seg = candidates[rows, best]
+    i0 = seg_start[seg]
+    i1 = seg_end[seg]
+    matrix = sp.coo_matrix((np.concatenate([1.0 - tb, tb]),
+                            (np.concatenate([rows, rows]), np.concatenate([i0, i1]))),
+                           shape=(nq, m))
+    return matrix.tocsr()
+
+
+def _incident_segments(m: int, n_segments: int) -> tuple[np.ndarray, np.ndarray]:
+    """The two segments incident to each of ``m`` nodes: ``i - 1`` and ``i`` (wrapped if closed)."""
     left = np.arange(m) - 1
     right = np.arange(m).copy()
     if n_segments == m:
@@ -247,12 +269,15 @@ def polyline_interpolation_matrix(nodes: np.ndarray, closed: bool,
     else:
         left = np.where(left < 0, 0, left)
         right = np.where(right >= n_segments, n_segments - 1, right)
-    k = min(m, 8)
-    _, near = cKDTree(nodes).query(queries, k=k)
-    near = near.reshape(nq, k)
-    candidates = np.concatenate([left[near], right[near]], axis=1)  # (nq, 2k)
-    a = nodes[seg_start[candidates]]
-    b = nodes[seg_end[candidates]]
+    return left, right
+
+
+def _nearest_projection(a: np.ndarray, b: np.ndarray, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per query, the candidate segment ``[a, b]`` nearest to it and the parameter ``t`` of its projection.
+
+    ``a`` and ``b`` are ``(q, c, space_dim)``: the ends of each query's ``c`` candidate segments.
+    Returns the index of the nearest candidate and its ``t``, both ``(q,)``.
+    """
     ab = b - a
     length2 = np.einsum("qcs,qcs->qc", ab, ab)
     q = queries[:, None, :]
@@ -262,15 +287,7 @@ def polyline_interpolation_matrix(nodes: np.ndarray, closed: bool,
     proj = a + t[..., None] * ab
     dist2 = np.einsum("qcs,qcs->qc", q - proj, q - proj)
     best = np.argmin(dist2, axis=1)
-    rows = np.arange(nq)
-    seg = candidates[rows, best]
-    tb = t[rows, best]
-    i0 = seg_start[seg]
-    i1 = seg_end[seg]
-    matrix = sp.coo_matrix((np.concatenate([1.0 - tb, tb]),
-                            (np.concatenate([rows, rows]), np.concatenate([i0, i1]))),
-                           shape=(nq, m))
-    return matrix.tocsr()
+    return best, t[np.arange(queries.shape[0]), best]
 
 
 def build_mapping(kind: str, writer_points: np.ndarray, reader_points: np.ndarray, *,
@@ -306,16 +323,7 @@ def build_mapping(kind: str, writer_points: np.ndarray, reader_points: np.ndarra
     if kind in ("matching", "nearest"):
         dist, idx = cKDTree(wp).query(rp)
         if kind == "matching":
-            size = float(np.max(np.ptp(wp, axis=0))) if nw > 1 else 0.0
-            tol = _MATCH_RTOL * max(size, float(np.max(np.abs(wp))), 1e-300)
-            bad = np.flatnonzero(dist > tol)
-            if bad.size:
-                i = int(bad[0])
-                raise ValueError(
-                    f"matching mapping of {what}: {bad.size} of {nr} reader points have no "
-                    f"writer point within {tol:.2e}; e.g. reader point {i} at {rp[i].tolist()} "
-                    f"is {dist[i]:.3e} from the nearest writer point.  Use mapping='nearest', "
-                    f"'linear' or 'conservative' for non-matching interfaces.")
+            _check_matching(wp, rp, dist, what)
         matrix = sp.csr_matrix((np.ones(nr), (rows, idx)), shape=(nr, nw))
     elif kind == "linear":
         perm, closed = order_along_curve(wp, curve, curve_order, what=f"{what}: writer curve")
@@ -329,3 +337,18 @@ def build_mapping(kind: str, writer_points: np.ndarray, reader_points: np.ndarra
         raise ValueError(f"{what}: mapping = {kind!r} is not allowed; allowed values: "
                          f"'matching', 'nearest', 'linear', 'conservative'")
     return Mapping(kind=kind, matrix=matrix, data_name=data_name, reader=reader)
+
+
+def _check_matching(wp: np.ndarray, rp: np.ndarray, dist: np.ndarray, what: str) -> None:
+    """Raise unless every reader point is within ``_MATCH_RTOL`` (relative) of its nearest writer point."""
+    nr, nw = rp.shape[0], wp.shape[0]
+    size = float(np.max(np.ptp(wp, axis=0))) if nw > 1 else 0.0
+    tol = _MATCH_RTOL * max(size, float(np.max(np.abs(wp))), 1e-300)
+    bad = np.flatnonzero(dist > tol)
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(
+            f"matching mapping of {what}: {bad.size} of {nr} reader points have no "
+            f"writer point within {tol:.2e}; e.g. reader point {i} at {rp[i].tolist()} "
+            f"is {dist[i]:.3e} from the nearest writer point.  Use mapping='nearest', "
+            f"'linear' or 'conservative' for non-matching interfaces.")
