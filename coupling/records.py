@@ -242,25 +242,40 @@ def write_records(directory: str | os.PathLike, windows: Sequence[WindowRecord],
         "convergence_json": os.path.join(directory, "coupling-convergence.json"),
     }
     window_rows = [w.as_dict() for w in windows]
-    with open(paths["iterations_json"], "w") as fh:
-        json.dump(window_rows, fh, indent=1, allow_nan=False)
+    _write_json(paths["iterations_json"], window_rows)
+    _write_iterations_csv(paths["iterations_csv"], window_rows, participant_names)
+    iteration_rows = [r.as_dict() for w in windows for r in w.records]
+    _write_json(paths["convergence_json"], iteration_rows)
+    _write_convergence_csv(paths["convergence_csv"], iteration_rows, data_names, participant_names)
+    return paths
+
+
+def _write_json(path: str, rows: Any) -> None:
+    """Strict JSON (non-finite numbers as ``null``), through :func:`coupling.serialization.to_jsonable`."""
+    with open(path, "w") as fh:
+        json.dump(to_jsonable(rows), fh, indent=1, allow_nan=False)
+
+
+def _write_iterations_csv(path: str, window_rows: list[dict[str, Any]],
+                          participant_names: Sequence[str]) -> None:
     header = ["window", "time", "dt", "iterations", "converged", "reason", "columns_used_last",
               "columns_filtered", "columns_dropped", "columns_kept"]
     header += [f"solve_time[{p}]" for p in participant_names]
-    with open(paths["iterations_csv"], "w", newline="") as fh:
+    with open(path, "w", newline="") as fh:
         writer = csv.writer(fh)
         writer.writerow(header)
         for row in window_rows:
             writer.writerow([_csv_value(row[k]) for k in header[:10]]
                             + [_csv_value(row["solve_time"].get(p, 0.0)) for p in participant_names])
-    iteration_rows = [r.as_dict() for w in windows for r in w.records]
-    with open(paths["convergence_json"], "w") as fh:
-        json.dump(iteration_rows, fh, indent=1, allow_nan=False)
+
+
+def _write_convergence_csv(path: str, iteration_rows: list[dict[str, Any]], data_names: Sequence[str],
+                           participant_names: Sequence[str]) -> None:
     header = ["window", "iteration", "time", "dt"]
     header += [f"measure[{d}]" for d in data_names] + [f"residual_norm[{d}]" for d in data_names]
     header += ["relaxation", "columns_used", "columns_filtered", "columns_dropped", "converged"]
     header += [f"solve_time[{p}]" for p in participant_names]
-    with open(paths["convergence_csv"], "w", newline="") as fh:
+    with open(path, "w", newline="") as fh:
         writer = csv.writer(fh)
         writer.writerow(header)
         for row in iteration_rows:
@@ -271,7 +286,6 @@ def write_records(directory: str | os.PathLike, windows: Sequence[WindowRecord],
                        row["columns_dropped"], row["converged"]]
             values += [row["solve_time"].get(p, 0.0) for p in participant_names]
             writer.writerow([_csv_value(v) for v in values])
-    return paths
 
 
 # --------------------------------------------------------------------------- data recording

@@ -1,9 +1,14 @@
-"""Save nested Python/numpy structures to one ``.npz`` file (no pickle).
+"""Nested Python/numpy structures in files: ``.npz`` without pickle, and strict JSON.
 
-Arrays are stored as npz members; everything else (dicts with string keys,
-lists, tuples, numbers, strings, booleans, ``None``) as a JSON document in the
-member ``__meta__`` in which arrays appear as ``{"__array__": key}``.
-Loading uses ``allow_pickle=False``.
+:func:`save_npz` stores arrays as npz members and everything else (dicts with
+string keys, lists, tuples, numbers, strings, booleans, ``None``) as a JSON
+document in the member ``__meta__`` in which arrays appear as
+``{"__array__": key}``; :func:`load_npz` reads it back with
+``allow_pickle=False``.
+
+:func:`to_jsonable` turns results (numpy scalars and arrays, NaN/Inf) into
+plain Python that ``json.dump(..., allow_nan=False)`` accepts; every JSON file
+the project writes goes through it.
 """
 
 from __future__ import annotations
@@ -82,7 +87,18 @@ def load_npz(path: str | os.PathLike) -> Any:
 
 
 def to_jsonable(obj: Any) -> Any:
-    """Convert numpy scalars/arrays to Python and NaN/Inf to ``None`` for strict JSON."""
+    """``obj`` as plain Python for strict JSON (``json.dump(..., allow_nan=False)``), recursively.
+
+    * numpy arrays become (nested) lists, numpy scalars ``bool``, ``int`` or ``float``;
+    * NaN, +inf and -inf (Python or numpy floats) become ``None``;
+    * dicts keep their values' order with ``str(key)`` keys; tuples and lists become lists;
+    * anything else (strings, ``None``, ...) is returned unchanged.
+
+    Example::
+
+        json.dumps(to_jsonable({1: np.float64("nan"), "x": np.arange(2)}), allow_nan=False)
+        # '{"1": null, "x": [0, 1]}'
+    """
     if isinstance(obj, dict):
         return {str(k): to_jsonable(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
