@@ -1,8 +1,10 @@
-"""Toy participants with known answers, for tests, examples and benchmarks.
+"""Toy participants and coupled problems with known answers, for examples and tests.
 
 No finite elements: every participant solves its problem exactly (dense
 linear algebra or closed-form 1-D solutions), so coupled answers can be
-compared with a monolithic / analytic solution to rounding accuracy.
+compared with a monolithic / analytic solution to rounding accuracy.  They
+are the reference problems of ``examples/coupling_toys.py`` and of the
+coupling tests, and a check of any change to the schemes or accelerations.
 
 * :class:`AffineParticipant`: ``out = M @ in + b`` on ``n`` points.
 * :class:`ElasticBar`: a 1-D linear elastic bar ``(k u')' + f = 0`` on
@@ -171,6 +173,32 @@ def series_bars_exact(segments: Sequence[tuple[float, float, float, float]]
         ``(u, N)``: displacement and axial force as functions of ``x``.
     """
     m = len(segments)
+    c = _series_bars_coefficients(segments)
+
+    def locate(x: float) -> int:
+        for i, (a_i, b_i, _, _) in enumerate(segments):
+            if x <= b_i + 1e-14:
+                return i
+        return m - 1
+
+    def u(x: float) -> float:
+        i = locate(x)
+        a_i, _, k_i, f_i = segments[i]
+        xi = x - a_i
+        return float(c[2 * i] + c[2 * i + 1] * xi - f_i * xi * xi / (2.0 * k_i))
+
+    def n_force(x: float) -> float:
+        i = locate(x)
+        a_i, _, k_i, f_i = segments[i]
+        return float(k_i * c[2 * i + 1] - f_i * (x - a_i))
+
+    return u, n_force
+
+
+def _series_bars_coefficients(segments: Sequence[tuple[float, float, float, float]]) -> np.ndarray:
+    """``[c0_0, c1_0, c0_1, c1_1, ...]`` of the bars in series: ``u = 0`` at both outer ends,
+    ``u`` and ``N`` continuous at every joint."""
+    m = len(segments)
     a_mat = np.zeros((2 * m, 2 * m))
     rhs = np.zeros(2 * m)
     row = 0
@@ -191,26 +219,7 @@ def series_bars_exact(segments: Sequence[tuple[float, float, float, float]]
     a, b, k, f = segments[-1]
     a_mat[row, 2 * m - 2], a_mat[row, 2 * m - 1] = 1.0, b - a
     rhs[row] = f * (b - a) ** 2 / (2.0 * k)
-    c = np.linalg.solve(a_mat, rhs)
-
-    def locate(x: float) -> int:
-        for i, (a_i, b_i, _, _) in enumerate(segments):
-            if x <= b_i + 1e-14:
-                return i
-        return m - 1
-
-    def u(x: float) -> float:
-        i = locate(x)
-        a_i, _, k_i, f_i = segments[i]
-        xi = x - a_i
-        return float(c[2 * i] + c[2 * i + 1] * xi - f_i * xi * xi / (2.0 * k_i))
-
-    def n_force(x: float) -> float:
-        i = locate(x)
-        a_i, _, k_i, f_i = segments[i]
-        return float(k_i * c[2 * i + 1] - f_i * (x - a_i))
-
-    return u, n_force
+    return np.linalg.solve(a_mat, rhs)
 
 
 class LinearOdeParticipant(Participant):
@@ -272,6 +281,8 @@ class ToyProblem:
         relaxation: A constant relaxation factor that converges in the serial scheme.
         transient: ``(t_end, dt)`` for time-dependent problems, else ``None``.
         description: One line.
+        extra: Problem-specific facts, e.g. :func:`affine_pair_problem`'s serial
+            iteration operator ``"T"`` and its ``"eigenvalues"``.
     """
 
     name: str
