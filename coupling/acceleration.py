@@ -254,8 +254,8 @@ def _qr2_deleted(matrix: np.ndarray, columns: list[int], norms: np.ndarray,
     of R when the columns are factorised in order, so one QR of a block gives
     the test for all of its columns up to the first one deleted; the columns
     after it are factorised again against the new basis (projected out twice,
-    as in Gram–Schmidt with re-orthogonalisation).  The same decisions as the
-    column-by-column loop, at the cost of one QR plus one per deletion.
+    as in Gram–Schmidt with re-orthogonalisation).  The decisions are those of
+    Gram–Schmidt column by column (:func:`qr_filter`).
 
     Returns the deleted columns and an orthonormal basis of the kept ones (in their order).
     """

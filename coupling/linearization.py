@@ -243,7 +243,7 @@ class LinearizedPrior:
         return None if self._factors is None else dict(self._factors)
 
     def load_state(self, state: Mapping[str, Any] | None) -> None:
-        """Use the factorisation of another solve with the same linearised map (e.g. a Ca sweep)."""
+        """Use the factorisation of another solve with the same linearised map (e.g. the next solve of a sweep)."""
         if state is None:
             return
         n = self._scheme.layout.size
