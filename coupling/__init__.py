@@ -16,39 +16,56 @@ Example::
     result = scheme.run(t_end=1.0, dt=0.1)   # time windows
     traction = scheme.latest("Gamma1/traction")
 
-See ``docs/coupling.md`` for the configuration keys and the algorithms.
+This namespace holds the ``__all__`` of every module; the toy problems with
+known answers stay in their own module, :mod:`coupling.toys`.  See
+``docs/coupling.md`` for the configuration keys and the algorithms.
 """
 
 from coupling.acceleration import (IQNILS, IQNIMVJ, Acceleration, AccelerationInfo,
                                    AitkenRelaxation, ConstantRelaxation, NoAcceleration,
-                                   Preconditioner, build_acceleration, qr_filter)
-from coupling.config import (AccelerationConfig, ConvergenceMeasureConfig, CouplingConfig,
+                                   Preconditioner, build_acceleration, qr_filter,
+                                   relaxation_prior_diagonal)
+from coupling.config import (ACCELERATION_OPTIONS, ACCELERATIONS, FILTERS, JACOBIAN_PRIORS, MEASURES,
+                             ON_MAX_ITERATIONS, PRECONDITIONERS, SCHEMES, STATE_RELOADS,
+                             AccelerationConfig, ConvergenceMeasureConfig, CouplingConfig,
                              FilterConfig, PreconditionerConfig, load_config)
-from coupling.convergence import (AbsoluteConvergence, ConvergenceMeasure, RelativeConvergence,
-                                  ResidualRelativeConvergence, build_measure)
+from coupling.convergence import (AbsoluteConvergence, ConvergenceMeasure, MeasureValue,
+                                  RelativeConvergence, ResidualRelativeConvergence, build_measure)
 from coupling.errors import CouplingDivergedError, CouplingError, CouplingNotConvergedError
 from coupling.extrapolation import lagrange_weights
 from coupling.layout import VectorLayout
 from coupling.linearization import LinearizedPrior, coupled_jacobian
-from coupling.mapping import Mapping, build_mapping, order_along_curve
-from coupling.participant import Data, Participant
+from coupling.mapping import Mapping, build_mapping, order_along_curve, polyline_interpolation_matrix
+from coupling.parallel import SerialComm, default_comm, gather_rows, scatter_rows
+from coupling.participant import CURVE_ORDERS, CURVES, MAPPINGS, Data, Participant
 from coupling.records import (CouplingResult, IterationRecord, RecordedSolve, Recording,
-                              WindowRecord)
+                              WindowRecord, format_progress, write_records)
 from coupling.replay import ReplayResult, replay
 from coupling.schemes import (CouplingScheme, ParallelExplicitScheme, ParallelImplicitScheme,
                               SerialExplicitScheme, SerialImplicitScheme, build_scheme)
+from coupling.serialization import load_npz, save_npz, to_jsonable
 
 __all__ = [
-    "Participant", "Data", "build_scheme", "load_config", "replay",
-    "CouplingConfig", "AccelerationConfig", "ConvergenceMeasureConfig", "FilterConfig",
-    "PreconditionerConfig",
-    "CouplingScheme", "SerialImplicitScheme", "ParallelImplicitScheme", "SerialExplicitScheme",
-    "ParallelExplicitScheme",
+    # participants, data and schemes
+    "Participant", "Data", "MAPPINGS", "CURVES", "CURVE_ORDERS",
+    "build_scheme", "CouplingScheme", "SerialImplicitScheme", "ParallelImplicitScheme",
+    "SerialExplicitScheme", "ParallelExplicitScheme",
+    # configuration
+    "load_config", "CouplingConfig", "AccelerationConfig", "ConvergenceMeasureConfig", "FilterConfig",
+    "PreconditionerConfig", "SCHEMES", "STATE_RELOADS", "ACCELERATIONS", "FILTERS", "PRECONDITIONERS",
+    "MEASURES", "ON_MAX_ITERATIONS", "JACOBIAN_PRIORS", "ACCELERATION_OPTIONS",
+    # acceleration, convergence, extrapolation
     "Acceleration", "AccelerationInfo", "NoAcceleration", "ConstantRelaxation", "AitkenRelaxation",
-    "IQNILS", "IQNIMVJ", "Preconditioner", "build_acceleration", "qr_filter",
-    "ConvergenceMeasure", "AbsoluteConvergence", "RelativeConvergence",
-    "ResidualRelativeConvergence", "build_measure",
+    "IQNILS", "IQNIMVJ", "Preconditioner", "build_acceleration", "qr_filter", "relaxation_prior_diagonal",
+    "LinearizedPrior", "coupled_jacobian", "VectorLayout",
+    "ConvergenceMeasure", "AbsoluteConvergence", "RelativeConvergence", "ResidualRelativeConvergence",
+    "MeasureValue", "build_measure", "lagrange_weights",
+    # mapping and MPI
+    "Mapping", "build_mapping", "order_along_curve", "polyline_interpolation_matrix",
+    "SerialComm", "default_comm", "gather_rows", "scatter_rows",
+    # errors, records, replay, files
     "CouplingError", "CouplingDivergedError", "CouplingNotConvergedError",
     "CouplingResult", "IterationRecord", "WindowRecord", "Recording", "RecordedSolve",
-    "ReplayResult", "VectorLayout", "LinearizedPrior", "coupled_jacobian", "Mapping", "build_mapping", "order_along_curve", "lagrange_weights",
+    "format_progress", "write_records", "replay", "ReplayResult",
+    "save_npz", "load_npz", "to_jsonable",
 ]

@@ -73,7 +73,7 @@ from coupling.layout import VectorLayout
 
 __all__ = [
     "AccelerationInfo", "Preconditioner", "Acceleration", "NoAcceleration", "ConstantRelaxation",
-    "AitkenRelaxation", "IQNILS", "IQNIMVJ", "qr_filter", "build_acceleration",
+    "AitkenRelaxation", "IQNILS", "IQNIMVJ", "qr_filter", "relaxation_prior_diagonal", "build_acceleration",
 ]
 
 _EPS = np.finfo(float).eps

@@ -45,9 +45,9 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 __all__ = [
-    "SCHEMES", "ACCELERATIONS", "FILTERS", "PRECONDITIONERS", "MEASURES", "ON_MAX_ITERATIONS",
-    "ACCELERATION_OPTIONS", "ConvergenceMeasureConfig", "FilterConfig", "PreconditionerConfig",
-    "AccelerationConfig", "CouplingConfig", "load_config",
+    "SCHEMES", "STATE_RELOADS", "ACCELERATIONS", "FILTERS", "PRECONDITIONERS", "MEASURES",
+    "ON_MAX_ITERATIONS", "JACOBIAN_PRIORS", "ACCELERATION_OPTIONS", "ConvergenceMeasureConfig",
+    "FilterConfig", "PreconditionerConfig", "AccelerationConfig", "CouplingConfig", "load_config",
 ]
 
 SCHEMES = ("serial-implicit", "parallel-implicit", "serial-explicit", "parallel-explicit")
