@@ -155,6 +155,39 @@ class NeoHookeanCellSolver(FieldSolver):
                              newton_rtol, reuse, rigid_mode_rtol)
         interfaces = dict(interfaces or {})
         robin_interfaces = dict(robin_interfaces or {})
+        self._check_conditions(interfaces, robin_interfaces, symmetry, dirichlet, remove_rigid_modes)
+        self.mesh, self.facet_tags = mesh, facet_tags
+        self.comm: MPI.Comm = mesh.comm
+        self.quadrature_degree = int(quadrature_degree)
+        self.rigid_mode_rtol = float(rigid_mode_rtol)
+        self._fdim = mesh.topology.dim - 1
+        mesh.topology.create_connectivity(self._fdim, mesh.topology.dim)
+        v = self._build_space(mu, lmbda, displacement_scale, stress_scale)
+
+        internal = forms.residual(self.u, v, self._mu, self._lmbda, self._d, self._s, self.dx)
+        F_data = self._data_terms(tractions, robin_interfaces, v)
+        bcs = self._dirichlet_interface_bcs(interfaces)
+        bcs += self._symmetry_bcs(symmetry)
+        bcs += self._dirichlet_bcs(dirichlet)
+        self._pins = None
+        self.rigid_mode_reaction = None
+        if remove_rigid_modes:
+            pin_bcs, self._pins = self._point_constraints()
+            bcs += pin_bcs
+        self.bcs = bcs
+        # kept Jacobian: the linearisation at rest (the same matrix whenever assembled; exact at large strain)
+        # the state part is the internal force: its assembly at the solution is also the "force" output
+        self._newton = NewtonSolver(internal, self.u, bcs, name=self.name, rtol=newton_rtol, reuse=reuse,
+                                    petsc_options=petsc_options,
+                                    J_reference=jacobian_at_rest(internal + F_data, self.u), F_data=F_data)
+        self._internal_form = self._newton.F
+        self.linear_path = bool(linear_path)
+        self._compiled: dict[str, object] = {}
+        self.timing["setup"] = time.perf_counter() - t0
+
+    # -- construction helpers ----------------------------------------------
+    def _check_conditions(self, interfaces, robin_interfaces, symmetry, dirichlet, remove_rigid_modes) -> None:
+        """Raise ValueError if interface names clash, or the displacement is held nowhere or twice over."""
         clash = set(interfaces) & set(robin_interfaces)
         if clash:
             raise ValueError(f"{self.name}: interface names used both as Dirichlet and Robin interfaces: "
@@ -165,25 +198,39 @@ class NeoHookeanCellSolver(FieldSolver):
         if not (remove_rigid_modes or interfaces or robin_interfaces or symmetry or dirichlet):
             raise ValueError(f"{self.name}: no displacement is prescribed anywhere; give interfaces, "
                              f"symmetry or dirichlet, or remove_rigid_modes=True for a pure traction load")
-        self.mesh, self.facet_tags = mesh, facet_tags
-        self.comm: MPI.Comm = mesh.comm
-        self.quadrature_degree = int(quadrature_degree)
-        self.rigid_mode_rtol = float(rigid_mode_rtol)
-        self._fdim = mesh.topology.dim - 1
-        mesh.topology.create_connectivity(self._fdim, mesh.topology.dim)
 
-        self.V = fem.VectorFunctionSpace(mesh, ("Lagrange", 2))
+    def _constant(self, value) -> fem.Constant:
+        return fem.Constant(self.mesh, PETSc.ScalarType(value))
+
+    def _build_space(self, mu, lmbda, displacement_scale, stress_scale):
+        """The P2 displacement space and unknown, the moduli and units as Constants, the measures;
+        returns the test function."""
+        self.V = fem.VectorFunctionSpace(self.mesh, ("Lagrange", 2))
         self.u = fem.Function(self.V, name="u_hat")
         v = ufl.TestFunction(self.V)
-        c = lambda value: fem.Constant(mesh, PETSc.ScalarType(value))  # noqa: E731
-        self._mu, self._lmbda = c(mu), c(lmbda)
-        self._d, self._s = c(displacement_scale), c(stress_scale)
-        self.dx = quadrature_measure("dx", mesh, degree=self.quadrature_degree)
-        self.ds = quadrature_measure("ds", mesh, facet_tags, degree=self.quadrature_degree)
+        self._mu, self._lmbda = self._constant(mu), self._constant(lmbda)
+        self._d, self._s = self._constant(displacement_scale), self._constant(stress_scale)
+        self.dx = quadrature_measure("dx", self.mesh, degree=self.quadrature_degree)
+        self.ds = quadrature_measure("ds", self.mesh, self.facet_tags, degree=self.quadrature_degree)
+        return v
 
-        internal = forms.residual(self.u, v, self._mu, self._lmbda, self._d, self._s, self.dx)
+    def _data_terms(self, tractions, robin_interfaces, v):
+        """The boundary terms carrying data: Robin springs minus dead loads (0 if there are none)."""
+        external = self._traction_terms(tractions, v)
+        internal_robin = self._robin_terms(robin_interfaces, v)
+        F_data = 0
+        if internal_robin is not None:
+            F_data = F_data + internal_robin
+        if external is not None:
+            F_data = F_data - external
+            self._external_form = fem.form(external)
+        else:
+            self._external_form = None
+        return F_data
+
+    def _traction_terms(self, tractions, v):
+        """Dead loads: int t . v dS over each entry's facets (None without tractions)."""
         self._tractions: list[tuple[list[int], object]] = []
-        F_data = 0           # the boundary terms carrying data (Robin springs, dead loads)
         external = None
         for k, entry in enumerate(tractions):
             tags, value = _unpack(entry, 2, f"tractions[{k}]")
@@ -192,8 +239,13 @@ class NeoHookeanCellSolver(FieldSolver):
             self._tractions.append((tags, t))
             term = ufl.inner(t, v) * self.ds(tuple(tags))
             external = term if external is None else external + term
-        # Robin interfaces: int kappa (u - u*) . v dS on the interface, nodal forces f* as loads
+        return external
+
+    def _robin_terms(self, robin_interfaces, v):
+        """Robin interfaces: int kappa (u - u*) . v dS on each (None without any); nodal forces f* are
+        loads.  Declares the interfaces."""
         self._robin: dict[str, dict] = {}
+        internal_robin = None
         for iname, entry in robin_interfaces.items():
             tags, kappa = _unpack(entry, 2, f"robin_interfaces[{iname!r}]")
             tags = as_tags(tags)
@@ -201,21 +253,17 @@ class NeoHookeanCellSolver(FieldSolver):
             if not (np.isfinite(kappa) and kappa > 0):
                 raise ValueError(f"{self.name}: robin_interfaces[{iname!r}]: kappa = {kappa!r} must be > 0")
             target = fem.Function(self.V, name=f"u_{iname}")
-            term = c(kappa) * ufl.inner(self.u - target, v) * self.ds(tuple(tags))
-            internal_robin = term if not self._robin else internal_robin + term
-            nodes = InterfaceNodes(self.V, facet_tags, tags)
+            term = self._constant(kappa) * ufl.inner(self.u - target, v) * self.ds(tuple(tags))
+            internal_robin = term if internal_robin is None else internal_robin + term
+            nodes = InterfaceNodes(self.V, self.facet_tags, tags)
             owned_rows = nodes.owned
             self._robin[iname] = {"target": target, "nodes": nodes, "loads": np.zeros((nodes.size, 2)),
                                   "dofs": nodes.dofs()[owned_rows], "rows": nodes.index[owned_rows]}
             self._add_interface(iname, nodes, {"displacement": 2, "force": 2})
-        if self._robin:
-            F_data = F_data + internal_robin
-        if external is not None:
-            F_data = F_data - external
-            self._external_form = fem.form(external)
-        else:
-            self._external_form = None
+        return internal_robin
 
+    def _dirichlet_interface_bcs(self, interfaces) -> list:
+        """Dirichlet interfaces: u_hat = g (both components) on each; declares the interfaces."""
         bcs = []
         self._interface_bc_values: dict[str, fem.Function] = {}
         self._interface_bcs: dict[str, fem.DirichletBCMetaClass] = {}
@@ -227,13 +275,23 @@ class NeoHookeanCellSolver(FieldSolver):
             bcs.append(fem.dirichletbc(g, fem.locate_dofs_topological(self.V, self._fdim, facets)))
             self._interface_bc_values[iname] = g
             self._interface_bcs[iname] = bcs[-1]
-            self._add_interface(iname, InterfaceNodes(self.V, facet_tags, tags), {"displacement": 2})
+            self._add_interface(iname, InterfaceNodes(self.V, self.facet_tags, tags), {"displacement": 2})
+        return bcs
+
+    def _symmetry_bcs(self, symmetry) -> list:
+        """u_hat[c] = 0 on each symmetry entry's facets."""
+        bcs = []
         for k, entry in enumerate(symmetry):
             tags, comp = _unpack(entry, 2, f"symmetry[{k}]")
             comp = _component(comp, f"symmetry[{k}]")
             facets = self._facets(tags, f"symmetry[{k}]")
             dofs = fem.locate_dofs_topological(self.V.sub(comp), self._fdim, facets)
             bcs.append(fem.dirichletbc(PETSc.ScalarType(0), dofs, self.V.sub(comp)))
+        return bcs
+
+    def _dirichlet_bcs(self, dirichlet) -> list:
+        """Prescribed displacements, all components or one, with their values set."""
+        bcs = []
         self._dirichlet: list[tuple[int | None, fem.Function]] = []
         for k, entry in enumerate(dirichlet):
             if len(entry) not in (2, 3):
@@ -252,24 +310,7 @@ class NeoHookeanCellSolver(FieldSolver):
                 bcs.append(fem.dirichletbc(g, dofs, self.V.sub(comp)))
             self._dirichlet.append((comp, g))
             self.set_dirichlet(k, value)
-
-        self._pins = None
-        self.rigid_mode_reaction = None
-        if remove_rigid_modes:
-            pin_bcs, self._pins = self._point_constraints()
-            bcs += pin_bcs
-        self.bcs = bcs
-        # kept Jacobian: the linearisation at rest (the same matrix whenever assembled; exact at large strain)
-        # the state part is the internal force: its assembly at the solution is also the "force" output
-        self._newton = NewtonSolver(internal, self.u, bcs, name=self.name, rtol=newton_rtol, reuse=reuse,
-                                    petsc_options=petsc_options,
-                                    J_reference=jacobian_at_rest(internal + F_data, self.u), F_data=F_data)
-        self._internal_form = self._newton.F
-        self.linear_path = bool(linear_path)
-        self._compiled: dict[str, object] = {}
-        self.timing["setup"] = time.perf_counter() - t0
-
-    # -- construction helpers ----------------------------------------------
+        return bcs
     def _facets(self, tags: list[int], what: str) -> np.ndarray:
         """Local facets with any of ``tags``; raise if none exists on any rank."""
         facets = tagged_facets(self.facet_tags, tags)
