@@ -208,65 +208,15 @@ class StokesSolver(FieldSolver):
         t0 = time.perf_counter()
         self.name = name
         viscosity = float(viscosity)
-        if not np.isfinite(viscosity) or viscosity <= 0:
-            raise ValueError(f"{name}: viscosity must be finite and > 0, got {viscosity}")
-        if mesh.geometry.dim != 2 or mesh.topology.dim != 2:
-            raise ValueError(f"{name}: mesh must be 2D (gdim = tdim = 2), got gdim={mesh.geometry.dim}")
-        if int(quadrature_degree) < 1:
-            raise ValueError(f"{name}: quadrature_degree must be >= 1, got {quadrature_degree}")
-        interfaces = dict(interfaces or {})
-        for key, spec in interfaces.items():
-            if not isinstance(spec, FluidInterface):
-                raise TypeError(f"{name}: interfaces[{key!r}] must be a FluidInterface, got {type(spec).__name__}")
+        interfaces = self._check_arguments(mesh, viscosity, quadrature_degree, interfaces)
         self.mesh, self.facet_tags = mesh, facet_tags
         self.quadrature_degree = int(quadrature_degree)
         self.comm: MPI.Comm = mesh.comm
         self._fdim = mesh.topology.dim - 1
         mesh.topology.create_connectivity(self._fdim, mesh.topology.dim)
-
-        # -- spaces -------------------------------------------------------------
-        P2 = ufl.VectorElement("Lagrange", mesh.ufl_cell(), 2)
-        P1 = ufl.FiniteElement("Lagrange", mesh.ufl_cell(), 1)
-        self.W = fem.FunctionSpace(mesh, ufl.MixedElement([P2, P1]))
-        self.V, V_to_W = self.W.sub(0).collapse()
-        self.Q, Q_to_W = self.W.sub(1).collapse()
-        self._V_to_W = np.asarray(V_to_W, dtype=np.int32)
-        self._Q_to_W = np.asarray(Q_to_W, dtype=np.int32)
-        self._Vc = [self.W.sub(0).sub(c).collapse() for c in range(2)]    # (space, map to W)
-        self.w = fem.Function(self.W, name="w")
-        self._u = fem.Function(self.V, name="V")
-        self._p = fem.Function(self.Q, name="P")
-        self.mu = fem.Constant(mesh, PETSc.ScalarType(viscosity))
-        self.dx = quadrature_measure("dx", mesh, degree=self.quadrature_degree)
-
-        # -- tags ----------------------------------------------------------------
-        velocity_bcs = [(as_tags(tags, "velocity_bcs"), value) for tags, value in velocity_bcs]
-        component_bcs = [(as_tags(tags, "component_bcs"), int(c), value) for tags, c, value in component_bcs]
-        for tags, c, _ in component_bcs:
-            if c not in (0, 1):
-                raise ValueError(f"{name}: component_bcs component must be 0 (x) or 1 (y), got {c} for tags {tags}")
-        self._check_tags(velocity_bcs, component_bcs, interfaces)
-
-        # -- interfaces: data, Robin terms, Dirichlet parts ----------------------
-        self._ifaces: dict[str, _Interface] = {}
-        marker_facets, marker_values = [], []
-        for k, (iname, spec) in enumerate(interfaces.items()):
-            it = _Interface(iname, spec, marker=k + 1)
-            it.nodes = InterfaceNodes(self.V, facet_tags, spec.tags, parent_dofs=self._V_to_W)
-            facets = self._facets(spec.tags)
-            marker_facets.append(facets)
-            marker_values.append(np.full(facets.size, it.marker, dtype=np.int32))
-            self._ifaces[iname] = it
-            self._add_interface(iname, it.nodes, spec.inputs)
-        if marker_facets:
-            f = np.hstack(marker_facets)
-            order = np.argsort(f)
-            self._iface_tags = dmesh.meshtags(mesh, self._fdim, f[order], np.hstack(marker_values)[order])
-        else:
-            self._iface_tags = dmesh.meshtags(mesh, self._fdim, np.empty(0, np.int32), np.empty(0, np.int32))
-        self.ds = quadrature_measure("ds", mesh, self._iface_tags, degree=self.quadrature_degree)
-
-        # -- body force ----------------------------------------------------------
+        self._build_spaces(viscosity)
+        velocity_bcs, component_bcs = self._boundary_tags(velocity_bcs, component_bcs, interfaces)
+        self._declare_interfaces(interfaces)
         self.body_force = self._body_force(body_force)
 
         # -- Stokes forms ---------------------------------------------------------
@@ -278,24 +228,8 @@ class StokesSolver(FieldSolver):
         for it in self._ifaces.values():
             F += self._robin_terms(it, u, v, n)
 
-        # -- Dirichlet conditions (interfaces first: outer boundaries win) ---------
-        self._constrained = [np.empty(0, np.int32), np.empty(0, np.int32)]   # V dofs per component
-        self._boundary_values: list[tuple[fem.Function, np.ndarray]] = []     # (data, its unscaled values)
-        self.boundary_velocity_scale = 1.0
-        bcs = []
-        for it in self._ifaces.values():
-            bcs += self._interface_bcs(it)
-        for tags, c, value in component_bcs:
-            bcs.append(self._component_bc(tags, c, value))
-        for tags, value in velocity_bcs:
-            bcs.append(self._velocity_bc(tags, value))
-        self._velocity_bcs, self._component_bcs = velocity_bcs, component_bcs
-        if pressure_pin is not None:
-            bcs.append(self._pressure_pin(pressure_pin))
-        else:
-            self._check_pressure_determined()
-        self.bcs = bcs
-        self._solver = self._build_solver(F, trial, v, bcs, petsc_options)
+        self.bcs = self._dirichlet_bcs(velocity_bcs, component_bcs, pressure_pin)
+        self._solver = self._build_solver(F, trial, v, self.bcs, petsc_options)
 
         # -- consistent traction: interface mass matrices -------------------------
         self._setup_traction_recovery()
@@ -322,6 +256,90 @@ class StokesSolver(FieldSolver):
         zero = fem.Constant(self.mesh, PETSc.ScalarType((0.0, 0.0)))
         L = L + ufl.inner(zero, v) * self.dx
         return LinearSolver(a, L, self.w, bcs, name=self.name, petsc_options=petsc_options)
+
+    def _check_arguments(self, mesh, viscosity: float, quadrature_degree, interfaces) -> dict:
+        """Raise if the viscosity, the mesh's dimension, the quadrature degree or an interface spec is
+        wrong; returns the interfaces as a dict."""
+        name = self.name
+        if not np.isfinite(viscosity) or viscosity <= 0:
+            raise ValueError(f"{name}: viscosity must be finite and > 0, got {viscosity}")
+        if mesh.geometry.dim != 2 or mesh.topology.dim != 2:
+            raise ValueError(f"{name}: mesh must be 2D (gdim = tdim = 2), got gdim={mesh.geometry.dim}")
+        if int(quadrature_degree) < 1:
+            raise ValueError(f"{name}: quadrature_degree must be >= 1, got {quadrature_degree}")
+        interfaces = dict(interfaces or {})
+        for key, spec in interfaces.items():
+            if not isinstance(spec, FluidInterface):
+                raise TypeError(f"{name}: interfaces[{key!r}] must be a FluidInterface, got {type(spec).__name__}")
+        return interfaces
+
+    def _build_spaces(self, viscosity: float) -> None:
+        """Taylor-Hood W = [P2 vector, P1], its collapsed subspaces and maps, the unknowns, mu and dx."""
+        mesh = self.mesh
+        P2 = ufl.VectorElement("Lagrange", mesh.ufl_cell(), 2)
+        P1 = ufl.FiniteElement("Lagrange", mesh.ufl_cell(), 1)
+        self.W = fem.FunctionSpace(mesh, ufl.MixedElement([P2, P1]))
+        self.V, V_to_W = self.W.sub(0).collapse()
+        self.Q, Q_to_W = self.W.sub(1).collapse()
+        self._V_to_W = np.asarray(V_to_W, dtype=np.int32)
+        self._Q_to_W = np.asarray(Q_to_W, dtype=np.int32)
+        self._Vc = [self.W.sub(0).sub(c).collapse() for c in range(2)]    # (space, map to W)
+        self.w = fem.Function(self.W, name="w")
+        self._u = fem.Function(self.V, name="V")
+        self._p = fem.Function(self.Q, name="P")
+        self.mu = fem.Constant(mesh, PETSc.ScalarType(viscosity))
+        self.dx = quadrature_measure("dx", mesh, degree=self.quadrature_degree)
+
+    def _boundary_tags(self, velocity_bcs, component_bcs, interfaces) -> tuple[list, list]:
+        """``velocity_bcs`` and ``component_bcs`` with their tags as tuples, checked (``_check_tags``)."""
+        velocity_bcs = [(as_tags(tags, "velocity_bcs"), value) for tags, value in velocity_bcs]
+        component_bcs = [(as_tags(tags, "component_bcs"), int(c), value) for tags, c, value in component_bcs]
+        for tags, c, _ in component_bcs:
+            if c not in (0, 1):
+                raise ValueError(f"{self.name}: component_bcs component must be 0 (x) or 1 (y), "
+                                 f"got {c} for tags {tags}")
+        self._check_tags(velocity_bcs, component_bcs, interfaces)
+        return velocity_bcs, component_bcs
+
+    def _declare_interfaces(self, interfaces: dict) -> None:
+        """One ``_Interface`` per entry (marker k + 1), the interface facet markers and their ``ds``."""
+        self._ifaces: dict[str, _Interface] = {}
+        marker_facets, marker_values = [], []
+        for k, (iname, spec) in enumerate(interfaces.items()):
+            it = _Interface(iname, spec, marker=k + 1)
+            it.nodes = InterfaceNodes(self.V, self.facet_tags, spec.tags, parent_dofs=self._V_to_W)
+            facets = self._facets(spec.tags)
+            marker_facets.append(facets)
+            marker_values.append(np.full(facets.size, it.marker, dtype=np.int32))
+            self._ifaces[iname] = it
+            self._add_interface(iname, it.nodes, spec.inputs)
+        if marker_facets:
+            f = np.hstack(marker_facets)
+            order = np.argsort(f)
+            self._iface_tags = dmesh.meshtags(self.mesh, self._fdim, f[order], np.hstack(marker_values)[order])
+        else:
+            self._iface_tags = dmesh.meshtags(self.mesh, self._fdim, np.empty(0, np.int32), np.empty(0, np.int32))
+        self.ds = quadrature_measure("ds", self.mesh, self._iface_tags, degree=self.quadrature_degree)
+
+    def _dirichlet_bcs(self, velocity_bcs, component_bcs, pressure_pin) -> list:
+        """Dirichlet conditions, interfaces first (outer boundaries win), then the pressure pin or the
+        check that the pressure is determined without one."""
+        self._constrained = [np.empty(0, np.int32), np.empty(0, np.int32)]   # V dofs per component
+        self._boundary_values: list[tuple[fem.Function, np.ndarray]] = []     # (data, its unscaled values)
+        self.boundary_velocity_scale = 1.0
+        bcs = []
+        for it in self._ifaces.values():
+            bcs += self._interface_bcs(it)
+        for tags, c, value in component_bcs:
+            bcs.append(self._component_bc(tags, c, value))
+        for tags, value in velocity_bcs:
+            bcs.append(self._velocity_bc(tags, value))
+        self._velocity_bcs, self._component_bcs = velocity_bcs, component_bcs
+        if pressure_pin is not None:
+            bcs.append(self._pressure_pin(pressure_pin))
+        else:
+            self._check_pressure_determined()
+        return bcs
 
     def _facets(self, tags: typing.Sequence[int]) -> np.ndarray:
         return tagged_facets(self.facet_tags, tags)
@@ -725,28 +743,12 @@ class StokesSolver(FieldSolver):
         if not self._ifaces:
             return {}
         ifaces = list(self._ifaces.values())
-        # kept set: the free interface velocity dofs (global, in W), then one pressure dof per part
-        vel = {it.name: it.nodes.global_dofs(self.W, parent=True, bcs=self.bcs).ravel() for it in ifaces}
-        kept_v = np.unique(np.hstack(list(vel.values())))
-        kept_v = kept_v[kept_v >= 0]
+        kept_v, pos = self._kept_velocity_dofs(ifaces)
         nv = kept_v.size
-        pos = {name: np.where(g >= 0, np.searchsorted(kept_v, np.maximum(g, 0)), -1) for name, g in vel.items()}
-        # the interface block of the inverse operator
-        A = fem_petsc.assemble_matrix(self._jacobian_operator_form(), bcs=self.bcs)
-        A.assemble()
-        K = gather_csr(A)
-        A.destroy()
-        S = schur_complement(K, np.concatenate([kept_v, self._schur_pressure_dofs()]))
-        E = np.linalg.inv(S)[:nv, :nv]
+        E = self._inverse_interface_block(kept_v)
         # data matrices, the Robin operator on the kept velocity dofs, the inputs' columns
         data = self._jacobian_data_matrices(kept_v)
-        R_rob = scipy.sparse.csr_matrix((nv, nv))
-        for it in ifaces:
-            on = np.flatnonzero(pos[it.name] >= 0)
-            op = (float(it.alpha_n.value) * data[it.name]["robin_normal"]
-                  + float(it.alpha_t.value) * data[it.name]["robin_tangential"])
-            select = scipy.sparse.csr_matrix((np.ones(on.size), (on, pos[it.name][on])), shape=(op.shape[1], nv))
-            R_rob = R_rob + op @ select
+        R_rob = self._robin_operator(ifaces, data, pos, nv)
         columns, B = [], []
         for it in ifaces:
             for key in self._jacobian_input_keys(it):
@@ -758,20 +760,57 @@ class StokesSolver(FieldSolver):
         R = B.toarray() - R_rob @ X               # reactions at the kept interface velocity dofs
         out = {}
         for it in ifaces:
-            p = pos[it.name]
-            on = p >= 0
-            velocity = np.zeros((p.size, B.shape[1]))
-            velocity[on] = X[p[on]]
-            if np.any(p[it.traction_mass.keep.ravel()] < 0):
-                raise RuntimeError(f"{self.name}: interface {it.name!r}: a traction component is kept "
-                                   f"where the velocity is fixed")
-            reaction = np.zeros_like(velocity)
-            reaction[on] = R[p[on]]
-            traction = it.traction_mass.solve_columns(reaction)
-            for k, col in enumerate(columns):
-                block = slice(widths[k], widths[k + 1])
-                out[((it.name, "velocity"), col)] = np.ascontiguousarray(velocity[:, block])
-                out[((it.name, "traction"), col)] = np.ascontiguousarray(traction[:, block])
+            out.update(self._interface_jacobian_rows(it, pos[it.name], X, R, columns, widths))
+        return out
+
+    def _kept_velocity_dofs(self, ifaces: list) -> tuple[np.ndarray, dict]:
+        """The free interface velocity dofs (global, in W, sorted) and, per interface, the position in
+        them of each of its (N, 2) dofs (-1 where fixed)."""
+        vel = {it.name: it.nodes.global_dofs(self.W, parent=True, bcs=self.bcs).ravel() for it in ifaces}
+        kept_v = np.unique(np.hstack(list(vel.values())))
+        kept_v = kept_v[kept_v >= 0]
+        pos = {name: np.where(g >= 0, np.searchsorted(kept_v, np.maximum(g, 0)), -1) for name, g in vel.items()}
+        return kept_v, pos
+
+    def _inverse_interface_block(self, kept_v: np.ndarray) -> np.ndarray:
+        """(K^-1) on the kept velocity dofs: the inverse of the Schur complement onto them and one
+        pressure dof per connected part, restricted to the velocity rows and columns."""
+        A = fem_petsc.assemble_matrix(self._jacobian_operator_form(), bcs=self.bcs)
+        A.assemble()
+        K = gather_csr(A)
+        A.destroy()
+        S = schur_complement(K, np.concatenate([kept_v, self._schur_pressure_dofs()]))
+        nv = kept_v.size
+        return np.linalg.inv(S)[:nv, :nv]
+
+    def _robin_operator(self, ifaces: list, data: dict, pos: dict, nv: int):
+        """R_rob = alpha_n B_N + alpha_t B_T on the kept velocity dofs (sparse, (nv, nv))."""
+        R_rob = scipy.sparse.csr_matrix((nv, nv))
+        for it in ifaces:
+            on = np.flatnonzero(pos[it.name] >= 0)
+            op = (float(it.alpha_n.value) * data[it.name]["robin_normal"]
+                  + float(it.alpha_t.value) * data[it.name]["robin_tangential"])
+            select = scipy.sparse.csr_matrix((np.ones(on.size), (on, pos[it.name][on])), shape=(op.shape[1], nv))
+            R_rob = R_rob + op @ select
+        return R_rob
+
+    def _interface_jacobian_rows(self, it: _Interface, p: np.ndarray, X: np.ndarray, R: np.ndarray,
+                                 columns: list, widths: np.ndarray) -> dict:
+        """The blocks of interface ``it``'s outputs: its velocity rows of X, its traction from R."""
+        on = p >= 0
+        velocity = np.zeros((p.size, X.shape[1]))
+        velocity[on] = X[p[on]]
+        if np.any(p[it.traction_mass.keep.ravel()] < 0):
+            raise RuntimeError(f"{self.name}: interface {it.name!r}: a traction component is kept "
+                               f"where the velocity is fixed")
+        reaction = np.zeros_like(velocity)
+        reaction[on] = R[p[on]]
+        traction = it.traction_mass.solve_columns(reaction)
+        out = {}
+        for k, col in enumerate(columns):
+            block = slice(widths[k], widths[k + 1])
+            out[((it.name, "velocity"), col)] = np.ascontiguousarray(velocity[:, block])
+            out[((it.name, "traction"), col)] = np.ascontiguousarray(traction[:, block])
         return out
 
     # =========================================================================
