@@ -136,6 +136,70 @@ def _max_abs(M) -> np.ndarray:
         out[nonempty] = np.maximum.reduceat(np.abs(M.data), M.indptr[:-1][nonempty])
     return np.where(out > 0, out, 1.0)
 
+def _equilibrated(K) -> tuple:
+    """``(Dr K Dc, dr, dc)``: K (CSR) with rows, then columns, scaled by 1 / their largest |entry|."""
+    K = K.tocsr()
+    dr = 1.0 / _max_abs(K)
+    K.data *= np.repeat(dr, np.diff(K.indptr))
+    dc = 1.0 / _max_abs(K.tocsc())
+    K.data *= dc[K.indices]
+    return K, dr, dc
+
+
+def _interface_set(sel, pressure) -> tuple[np.ndarray, int]:
+    """G = [flow dofs (w on fluid interfaces, one p), network dofs (u on all interfaces)], each part
+    sorted, fixed dofs left out; returns ``(G, number of flow dofs)``."""
+    w_dofs = [g.ravel() for (_, f), g in sel.items() if f == "w"]
+    u_dofs = [g.ravel() for (_, f), g in sel.items() if f == "u"]
+    gamma_f = np.unique(np.hstack(w_dofs + [pressure, np.empty(0, np.int64)]))
+    gamma_u = np.unique(np.hstack(u_dofs + [np.empty(0, np.int64)]))
+    gamma_f, gamma_u = gamma_f[gamma_f >= 0], gamma_u[gamma_u >= 0]
+    return np.hstack([gamma_f, gamma_u]), gamma_f.size
+
+
+def _positions(pos: np.ndarray, dofs) -> np.ndarray:
+    """Positions in G of (N, 2) dofs, -1 where fixed (``pos``: the position of each dof, -1 off G)."""
+    d = np.asarray(dofs).ravel()
+    return np.where(d >= 0, pos[np.maximum(d, 0)], -1)
+
+
+def _rows_of(pos: np.ndarray, dofs, Xin: np.ndarray) -> np.ndarray:
+    """(2 N, n_in) rows of the interface state ``Xin`` at ``dofs`` (zero where fixed)."""
+    g = _positions(pos, dofs)
+    out = Xin[np.maximum(g, 0)]
+    out[g < 0] = 0.0
+    return out
+
+
+def _solve_flow_first(S: np.ndarray, Dm: np.ndarray, nf: int, flow_cols: int) -> np.ndarray:
+    """S'^-1 Dm (dense LU).  At rest the steady flow does not see the network: S' is then block
+    lower-triangular in (flow, network) and is solved by blocks, the first ``flow_cols`` columns
+    (the flow inputs) through both blocks."""
+    ng = S.shape[0]
+    X = np.zeros_like(Dm)
+    if nf and np.abs(S[:nf, nf:]).max(initial=0.0) <= 1e-13 * np.abs(S).max(initial=0.0):
+        X[:nf, :flow_cols] = scipy.linalg.lu_solve(scipy.linalg.lu_factor(S[:nf, :nf], check_finite=False),
+                                                   Dm[:nf, :flow_cols], check_finite=False)
+        rhs = Dm[nf:].copy()
+        rhs[:, :flow_cols] -= S[nf:, :nf] @ X[:nf, :flow_cols]
+        X[nf:] = scipy.linalg.lu_solve(scipy.linalg.lu_factor(S[nf:, nf:], check_finite=False), rhs,
+                                       check_finite=False)
+    elif ng:
+        X = scipy.linalg.lu_solve(scipy.linalg.lu_factor(S, check_finite=False), Dm, check_finite=False)
+    return X
+
+
+def _check_arguments(params, quadrature_degree, newton_rtol, kinematics) -> None:
+    """Raise TypeError or ValueError naming the first argument of the gel solver that is wrong."""
+    if not isinstance(params, GelParameters):
+        raise TypeError(f"params must be a GelParameters, got {type(params).__name__}")
+    if int(quadrature_degree) < 1:
+        raise ValueError(f"quadrature_degree must be >= 1, got {quadrature_degree!r}")
+    if not (0.0 < newton_rtol < 1.0):
+        raise ValueError(f"newton_rtol must be in (0, 1), got {newton_rtol!r}")
+    if kinematics not in KINEMATICS:
+        raise ValueError(f"kinematics must be one of {KINEMATICS}, got {kinematics!r}")
+
 
 class PoroelasticGelSolver(FieldSolver):
     """Steady poroelastic two-phase gel on its own mesh (see the module docstring).
@@ -210,14 +274,7 @@ class PoroelasticGelSolver(FieldSolver):
                  linear_path: bool = False):
         t0 = time.perf_counter()
         super().__init__(mesh)
-        if not isinstance(params, GelParameters):
-            raise TypeError(f"params must be a GelParameters, got {type(params).__name__}")
-        if int(quadrature_degree) < 1:
-            raise ValueError(f"quadrature_degree must be >= 1, got {quadrature_degree!r}")
-        if not (0.0 < newton_rtol < 1.0):
-            raise ValueError(f"newton_rtol must be in (0, 1), got {newton_rtol!r}")
-        if kinematics not in KINEMATICS:
-            raise ValueError(f"kinematics must be one of {KINEMATICS}, got {kinematics!r}")
+        _check_arguments(params, quadrature_degree, newton_rtol, kinematics)
         self.kinematics = kinematics
         self._forms = forms if kinematics == "small" else lagrangian
         self.name = name
@@ -225,18 +282,7 @@ class PoroelasticGelSolver(FieldSolver):
         self.facet_tags = facet_tags
         self.quadrature_degree = int(quadrature_degree)
         self.transient = bool(transient)
-        comm = mesh.comm
-        self._present_tags = set(int(t) for t in np.unique(
-            np.hstack(comm.allgather(np.unique(facet_tags.values)))))
-        fluid_interfaces = dict(fluid_interfaces or {})
-        cell_interfaces = dict(cell_interfaces or {})
-        self._fluid, self._cell = {}, {}
-        self._stiffness: dict[str, tuple[np.ndarray, np.ndarray]] = {}     # Robin operators of cell interfaces
-        self._jacobian_cache: dict | None = None          # interface_jacobian(), at rest
-        self._jacobian_form = None                         # its compiled data form
-        clash = set(fluid_interfaces) & set(cell_interfaces)
-        if clash:
-            raise ValueError(f"interface names used both as fluid and cell interfaces: {sorted(clash)}")
+        fluid_interfaces, cell_interfaces = self._interface_registry(fluid_interfaces, cell_interfaces)
 
         self._build_spaces()
         self.params = params
@@ -248,16 +294,9 @@ class PoroelasticGelSolver(FieldSolver):
         self._build_time_terms()
         rel, u, p = ufl.split(self.state)
         w, z, q = ufl.TestFunctions(self.W)
-        v_f = rel + self.v_s if self.transient else rel
         # the residual in two parts: the bulk (depends on the state only) and the interface and
         # load terms (boundary integrals, the only part that changes with the coupling data)
-        if self.kinematics == "small":
-            F_state = forms.bulk_residual(v_f, u, p, w, z, q, self.coefficients, self.dx, body_forces, self.v_s)
-        else:
-            dJdt = None if not self.transient else lagrangian.volume_rate(
-                u, self.history.past, self.history.constants, self.coefficients.d)
-            F_state = lagrangian.bulk_residual(v_f, u, p, w, z, q, self.coefficients, self.dx, body_forces,
-                                               self.v_s, dJdt)
+        F_state = self._state_residual(rel, u, p, w, z, q, body_forces)
         F_data = 0
         for iname, tags in fluid_interfaces.items():
             F_data += self._add_fluid_interface(iname, tags)
@@ -267,6 +306,42 @@ class PoroelasticGelSolver(FieldSolver):
         self.bcs = self._build_bcs(no_slip, symmetry, dirichlet)
         F = F_state + F_data
         self.residual_form = F
+        self._newton = self._build_newton(F_state, F_data, F, petsc_options, newton_rtol, newton_reuse)
+        self.linear_path = bool(linear_path)
+        self._build_postprocessing()
+        self.timing["setup"] = time.perf_counter() - t0
+        self.timing["newton_iterations"] = 0
+
+    # -- construction helpers ---------------------------------------------
+    def _interface_registry(self, fluid_interfaces, cell_interfaces) -> tuple[dict, dict]:
+        """The facet tags present on any rank, the empty interface registries and caches; returns the
+        interface arguments as dicts (raises if a name is both a fluid and a cell interface)."""
+        comm = self.mesh.comm
+        self._present_tags = set(int(t) for t in np.unique(
+            np.hstack(comm.allgather(np.unique(self.facet_tags.values)))))
+        fluid_interfaces = dict(fluid_interfaces or {})
+        cell_interfaces = dict(cell_interfaces or {})
+        self._fluid, self._cell = {}, {}
+        self._stiffness: dict[str, tuple[np.ndarray, np.ndarray]] = {}     # Robin operators of cell interfaces
+        self._jacobian_cache: dict | None = None          # interface_jacobian(), at rest
+        self._jacobian_form = None                         # its compiled data form
+        clash = set(fluid_interfaces) & set(cell_interfaces)
+        if clash:
+            raise ValueError(f"interface names used both as fluid and cell interfaces: {sorted(clash)}")
+        return fluid_interfaces, cell_interfaces
+
+    def _state_residual(self, rel, u, p, w, z, q, body_forces):
+        """The bulk residual (``gel.forms`` or ``gel.lagrangian``): the part that depends on the state only."""
+        v_f = rel + self.v_s if self.transient else rel
+        if self.kinematics == "small":
+            return forms.bulk_residual(v_f, u, p, w, z, q, self.coefficients, self.dx, body_forces, self.v_s)
+        dJdt = None if not self.transient else lagrangian.volume_rate(
+            u, self.history.past, self.history.constants, self.coefficients.d)
+        return lagrangian.bulk_residual(v_f, u, p, w, z, q, self.coefficients, self.dx, body_forces,
+                                        self.v_s, dJdt)
+
+    def _build_newton(self, F_state, F_data, F, petsc_options, newton_rtol, newton_reuse) -> NewtonSolver:
+        """The Newton solver of ``F_state + F_data`` with the linearisation at rest as its kept Jacobian."""
         options = dict(DEFAULT_PETSC_OPTIONS, **(petsc_options or {}))
         # the kept Jacobian is the linearisation at rest (no state, no interface data): the same matrix
         # whenever it is needed, e.g. after a restart; the exact one takes over at large loads
@@ -275,15 +350,9 @@ class PoroelasticGelSolver(FieldSolver):
         # at rest (steady) the flow's equations do not contain u: the linearisation is block
         # lower-triangular in ((w, p), u) and is factorised block by block (checked when assembled)
         flow = np.hstack([self._sub[0][1], self._sub[2][1]])
-        self._newton = NewtonSolver(F_state, self.state, self.bcs, name=name, rtol=newton_rtol, reuse=newton_reuse,
-                                    petsc_options=options, J_reference=jacobian_at_rest(F, self.state, data),
-                                    F_data=F_data, reference_blocks=[flow, self._sub[1][1]])
-        self.linear_path = bool(linear_path)
-        self._build_postprocessing()
-        self.timing["setup"] = time.perf_counter() - t0
-        self.timing["newton_iterations"] = 0
-
-    # -- construction helpers ---------------------------------------------
+        return NewtonSolver(F_state, self.state, self.bcs, name=self.name, rtol=newton_rtol, reuse=newton_reuse,
+                            petsc_options=options, J_reference=jacobian_at_rest(F, self.state, data),
+                            F_data=F_data, reference_blocks=[flow, self._sub[1][1]])
     def _build_spaces(self) -> None:
         """Mixed space [w (P2 vector), u (P2 vector), p (P1)], its collapsed subspaces, the state."""
         cell = self.mesh.ufl_cell()
@@ -810,32 +879,36 @@ class PoroelasticGelSolver(FieldSolver):
 
     def _interface_jacobian_blocks(self, K, sel, pressure, derivative, flux_rows) -> dict:
         """Rank-local dense algebra of :meth:`_build_interface_jacobian`."""
-        K = K.tocsr()
         # rows and columns equilibrated (in the paper's units the fluid rows are ~Ca times the network
         # rows; MUMPS then runs out of workspace): the Schur complement of Dr K Dc is Dr_G S Dc_G
-        dr = 1.0 / _max_abs(K)
-        K.data *= np.repeat(dr, np.diff(K.indptr))
-        dc = 1.0 / _max_abs(K.tocsc())
-        K.data *= dc[K.indices]
+        K, dr, dc = _equilibrated(K)
         # G = [flow dofs (w on fluid interfaces, one p), network dofs (u on all interfaces)]
-        w_dofs = [g.ravel() for (_, f), g in sel.items() if f == "w"]
-        u_dofs = [g.ravel() for (_, f), g in sel.items() if f == "u"]
-        gamma_f = np.unique(np.hstack(w_dofs + [pressure, np.empty(0, np.int64)]))
-        gamma_u = np.unique(np.hstack(u_dofs + [np.empty(0, np.int64)]))
-        gamma_f, gamma_u = gamma_f[gamma_f >= 0], gamma_u[gamma_u >= 0]
-        gamma = np.hstack([gamma_f, gamma_u])
-        nf, ng = gamma_f.size, gamma.size
+        gamma, nf = _interface_set(sel, pressure)
+        ng = gamma.size
         order = np.argsort(gamma)
         S = np.empty((ng, ng))
         S[np.ix_(order, order)] = schur_complement(K, gamma[order])      # rows/columns in the order of gamma
         pos = np.full(K.shape[0], -1, dtype=np.int64)
         pos[gamma] = np.arange(ng)
+        keys, columns, n_flow_inputs = self._input_columns(sel, gamma, pos, derivative)
+        widths = [c.shape[1] for c in columns]
+        Dm = dr[gamma][:, None] * (np.hstack(columns) if columns else np.zeros((ng, 0)))
+        X = _solve_flow_first(S, Dm, nf, sum(widths[:n_flow_inputs]))
+        X *= -dc[gamma][:, None]
+        response = dict(zip(keys, np.split(X, np.cumsum(widths)[:-1], axis=1) if keys else []))
+        for name in self._cell:
+            force = response[name, "force"]
+            response[name, "displacement"] = (force @ self._stiffness[name][1] if name in self._stiffness
+                                              else np.zeros_like(force))
+        out = self._fluid_interface_outputs(sel, pos, derivative, flux_rows, response)
+        for name in self._cell:
+            for key_in in response:
+                out[(name, "displacement"), key_in] = _rows_of(pos, sel[name, "u"], response[key_in])
+        return out
 
-        def at(dofs):                         # positions in G of (N, 2) dofs, -1 where fixed
-            d = np.asarray(dofs).ravel()
-            return np.where(d >= 0, pos[np.maximum(d, 0)], -1)
-
-        # dR_G/d(input), (n_G, 2 N_in), scaled by the rows' dr: first the inputs on the flow rows
+    def _input_columns(self, sel, gamma, pos, derivative) -> tuple[list, list, int]:
+        """dR_G/d(input), (n_G, 2 N_in) per input, the fluid interfaces' inputs (on the flow rows)
+        first; returns ``(keys, columns, number of fluid inputs)``."""
         keys, columns = [], []
         if derivative is not None:
             B, cmap = derivative
@@ -845,41 +918,16 @@ class PoroelasticGelSolver(FieldSolver):
                     columns.append(B[name, key][gamma][:, cmap[name]].toarray())
         n_flow_inputs = len(keys)
         for name in self._cell:
-            g = at(sel[name, "u"])
-            force = np.zeros((ng, g.size))
+            g = _positions(pos, sel[name, "u"])
+            force = np.zeros((gamma.size, g.size))
             on = g >= 0
             force[g[on], np.flatnonzero(on)] = -1.0            # the load is subtracted from the residual
             keys.append((name, "force"))
             columns.append(force)
-        widths = [c.shape[1] for c in columns]
-        Dm = dr[gamma][:, None] * (np.hstack(columns) if columns else np.zeros((ng, 0)))
-        # X_G = -S^-1 D = -Dc_G S'^-1 (Dr_G D), S' = Dr_G S Dc_G; at rest the steady flow does not see the
-        # network: S' is then block lower-triangular in (flow, network), solved by blocks
-        X = np.zeros_like(Dm)
-        flow_cols = sum(widths[:n_flow_inputs])
-        if nf and np.abs(S[:nf, nf:]).max(initial=0.0) <= 1e-13 * np.abs(S).max(initial=0.0):
-            X[:nf, :flow_cols] = scipy.linalg.lu_solve(scipy.linalg.lu_factor(S[:nf, :nf], check_finite=False),
-                                                       Dm[:nf, :flow_cols], check_finite=False)
-            rhs = Dm[nf:].copy()
-            rhs[:, :flow_cols] -= S[nf:, :nf] @ X[:nf, :flow_cols]
-            X[nf:] = scipy.linalg.lu_solve(scipy.linalg.lu_factor(S[nf:, nf:], check_finite=False), rhs,
-                                           check_finite=False)
-        elif ng:
-            X = scipy.linalg.lu_solve(scipy.linalg.lu_factor(S, check_finite=False), Dm, check_finite=False)
-        X *= -dc[gamma][:, None]
-        response = dict(zip(keys, np.split(X, np.cumsum(widths)[:-1], axis=1) if keys else []))
-        for name in self._cell:
-            force = response[name, "force"]
-            response[name, "displacement"] = (force @ self._stiffness[name][1] if name in self._stiffness
-                                              else np.zeros_like(force))
-        keys = list(response)
+        return keys, columns, n_flow_inputs
 
-        def rows_of(dofs, Xin):               # (2 N, n_in) state rows at dofs (-1: fixed, zero)
-            g = at(dofs)
-            out = Xin[np.maximum(g, 0)]
-            out[g < 0] = 0.0
-            return out
-
+    def _fluid_interface_outputs(self, sel, pos, derivative, flux_rows, response) -> dict:
+        """The output blocks of the fluid interfaces, per input, from the interface states ``response``."""
         phi_f = 1.0 - float(self._const["phi_s0"].value)
         # at rest (zero history) v_s = c0 u at the nodes and in the forms (the same P2 space)
         c0 = self.history.coefficients[0] if self.transient else 0.0
@@ -890,10 +938,10 @@ class PoroelasticGelSolver(FieldSolver):
                 B, cmap = derivative
                 flux = B[name, "flux"][flux_rows[name]][:, cmap[name]].toarray()   # (1 - phi_s0) (. n, psi n)
             n_out = 2 * d["nodes"].size
-            for key_in in keys:
+            for key_in in response:
                 Xin = response[key_in]
-                w = rows_of(sel[name, "w"], Xin)
-                u = rows_of(sel[name, "u"], Xin)
+                w = _rows_of(pos, sel[name, "w"], Xin)
+                u = _rows_of(pos, sel[name, "u"], Xin)
                 v_s = c0 * u
                 v_f = w + v_s if c0 else w
                 out[(name, "interstitial_velocity"), key_in] = v_f
@@ -907,9 +955,6 @@ class PoroelasticGelSolver(FieldSolver):
                     # j (phi_f v_f + phi_s v_s).n linearised: (1 - phi_s0) w + v_s
                     out[(name, "normal_flux"), key_in] = flux @ (w + v_s / phi_f)
                     out[(name, "displacement"), key_in] = u
-        for name in self._cell:
-            for key_in in keys:
-                out[(name, "displacement"), key_in] = rows_of(sel[name, "u"], response[key_in])
         return out
 
     # -- nodal helpers ---------------------------------------------------
