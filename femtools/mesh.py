@@ -152,33 +152,49 @@ def _band_partition(comm: MPI.Comm, nparts: int, graph, ghosting: bool):
 PARTITIONER = _cpp.mesh.create_cell_partitioner(_band_partition)
 
 
+def _region_arrays(model, region_tags):
+    """The cells with physical tags ``region_tags`` (all if None), renumbered onto their own nodes, and the
+    facets of the model all of whose nodes they use: ``(cell_id, cells, cell values, x, facets, facet values)``."""
+    data = model if isinstance(model, ModelArrays) else ModelArrays.from_model(model)
+    x, dims = data.x, data.dims
+    cell_id = max(data.topology, key=lambda k: dims[k])
+    tdim = dims[cell_id]
+    facet_ids = [k for k in data.topology if dims[k] == tdim - 1]
+    cells, cvals = data.topology[cell_id], data.markers[cell_id].astype(np.int32)
+    if region_tags is not None:
+        keep = np.isin(cvals, region_tags)
+        cells, cvals = cells[keep], cvals[keep]
+        if cells.shape[0] == 0:
+            raise ValueError(f"the gmsh model has no cells with physical tags {region_tags.tolist()}")
+    used = np.unique(cells)
+    new = np.full(x.shape[0], -1, np.int64)
+    new[used] = np.arange(used.size)
+    cells, x = new[cells], x[used]
+    if facet_ids:
+        f, fv = data.topology[facet_ids[0]], data.markers[facet_ids[0]]
+        keep = np.all(new[f] >= 0, axis=1)
+        facets, fvals = new[f[keep]], fv[keep].astype(np.int32)
+    else:
+        facets, fvals = np.empty((0, 2), np.int64), np.empty(0, np.int32)
+    return cell_id, cells, cvals, x, facets, fvals
+
+
+def _entity_tags(msh, dim: int, entities_in, values_in, name: str):
+    """Meshtags of dimension ``dim`` from (gmsh-ordered, dolfinx-permuted) entities given on any rank."""
+    entities, values = _cpp.io.distribute_entity_data(msh._mesh, dim, entities_in, values_in)
+    msh.topology.create_connectivity(dim, 0)
+    t = meshtags_from_entities(msh, dim, _cpp.graph.AdjacencyList_int32(entities), values.astype(np.int32))
+    t.name = name
+    return t
+
+
 def _model_mesh(model, comm: MPI.Comm, rank: int, region_tags, gdim: int):
     """Mesh of the cells with physical tags ``region_tags`` (all cells if None): (mesh, cell_tags, facet_tags).
 
     ``model`` (used on rank ``rank`` only) is a gmsh model or its :class:`ModelArrays`.
     """
     if comm.rank == rank:
-        data = model if isinstance(model, ModelArrays) else ModelArrays.from_model(model)
-        x, dims = data.x, data.dims
-        cell_id = max(data.topology, key=lambda k: dims[k])
-        tdim = dims[cell_id]
-        facet_ids = [k for k in data.topology if dims[k] == tdim - 1]
-        cells, cvals = data.topology[cell_id], data.markers[cell_id].astype(np.int32)
-        if region_tags is not None:
-            keep = np.isin(cvals, region_tags)
-            cells, cvals = cells[keep], cvals[keep]
-            if cells.shape[0] == 0:
-                raise ValueError(f"the gmsh model has no cells with physical tags {region_tags.tolist()}")
-        used = np.unique(cells)
-        new = np.full(x.shape[0], -1, np.int64)
-        new[used] = np.arange(used.size)
-        cells, x = new[cells], x[used]
-        if facet_ids:
-            f, fv = data.topology[facet_ids[0]], data.markers[facet_ids[0]]
-            keep = np.all(new[f] >= 0, axis=1)
-            facets, fvals = new[f[keep]], fv[keep].astype(np.int32)
-        else:
-            facets, fvals = np.empty((0, 2), np.int64), np.empty(0, np.int32)
+        cell_id, cells, cvals, x, facets, fvals = _region_arrays(model, region_tags)
         meta = comm.bcast((cell_id, cells.shape[1], facets.shape[1]), root=rank)
     else:
         cell_id, nn, nf = comm.bcast(None, root=rank)
@@ -192,19 +208,11 @@ def _model_mesh(model, comm: MPI.Comm, rank: int, region_tags, gdim: int):
     msh = create_mesh(comm, cells, x[:, :gdim], domain, partitioner=PARTITIONER)
     petscgarbage.keep(msh, comm)          # its communicator outlives the solvers' PETSc objects
     tdim = msh.topology.dim
-
-    def tags(dim, entities_in, values_in, name):
-        entities, values = _cpp.io.distribute_entity_data(msh._mesh, dim, entities_in, values_in)
-        msh.topology.create_connectivity(dim, 0)
-        t = meshtags_from_entities(msh, dim, _cpp.graph.AdjacencyList_int32(entities), values.astype(np.int32))
-        t.name = name
-        return t
-
-    cell_tags = tags(tdim, cells, cvals, "cell_tags")
+    cell_tags = _entity_tags(msh, tdim, cells, cvals, "cell_tags")
     ftype = _cpp.mesh.cell_entity_type(ctype, tdim - 1, 0)
     facets = facets[:, _cpp.io.perm_gmsh(ftype, nf)]
     msh.topology.create_connectivity(tdim - 1, tdim)
-    facet_tags = tags(tdim - 1, facets, fvals, "facet_tags")
+    facet_tags = _entity_tags(msh, tdim - 1, facets, fvals, "facet_tags")
     return msh, cell_tags, facet_tags
 
 
