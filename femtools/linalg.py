@@ -561,17 +561,7 @@ class NewtonSolver:
         self.J = fem.form(J, form_compiler_params=fcp)
         self.linear_tolerance = float(linear_tolerance)
         self.last_linear_ratio: float | None = None
-        # what the state part depends on: its coefficients' values and its Constants
-        self._state_sources = (list(F.coefficients()), list(F.constants()))
-        # what the linear path asks to be unchanged: the same but for the data coefficients
-        data = {id(c) for c in data_coefficients}
-        if not data <= {id(c) for c in self._state_sources[0]}:
-            raise ValueError(f"{name}: data_coefficients must be coefficients of F")
-        self._path_sources = ([c for c in self._state_sources[0] if id(c) not in data], self._state_sources[1])
-        # (key, F(u)) at the state the last solve started from and at the latest other state
-        self._state_residuals: dict[str, tuple[list[np.ndarray], PETSc.Vec] | None] = {"start": None,
-                                                                                       "latest": None}
-        self._solution_key: list[np.ndarray] | None = None    # where the last solve ended
+        self._track_sources(F, data_coefficients, name)
         self.J_reference = None if J_reference is None else fem.form(J_reference, form_compiler_params=fcp)
         self.u, self.bcs, self.name = u, bcs, name
         self.rtol, self.max_it, self.reuse, self.contraction = rtol, max_it, reuse, contraction
@@ -585,27 +575,50 @@ class NewtonSolver:
         self._active = None
         self._A_active = None
         if active_dofs is not None:
-            imap, bs = u.function_space.dofmap.index_map, u.function_space.dofmap.index_map_bs
-            owned = np.asarray(active_dofs, dtype=np.int64)
-            owned = owned[owned < imap.size_local * bs]
-            self._active = PETSc.IS().createGeneral((owned + imap.local_range[0] * bs).astype(PETSc.IntType),
-                                                    comm=comm)
+            self._active = self._owned_index_set(active_dofs)
         self.solver = DirectSolver(comm, name, petsc_options)
         self.ksp = self.solver.ksp
         self._blocks = None
         if reference_blocks is not None and self.J_reference is not None:
             if active_dofs is not None:
                 raise ValueError(f"{name}: reference_blocks cannot be combined with active_dofs")
-            imap, bs = u.function_space.dofmap.index_map, u.function_space.dofmap.index_map_bs
-            n_owned, start = imap.size_local * bs, imap.local_range[0] * bs
-            owned = [np.sort(np.asarray(d, dtype=np.int64)) for d in reference_blocks]
-            owned = [d[d < n_owned] + start for d in owned]
-            self._blocks = BlockTriangularSolver(comm, name, owned, petsc_options)
+            self._blocks = self._block_solver(reference_blocks, petsc_options)
         self._linear = self.solver                 # what the current Jacobian is solved with
         self._have_jacobian = False
         self._exact = self.J_reference is None or reuse == "never"   # which Jacobian is (to be) kept
         self._load_dofs, self._load_values = np.empty(0, dtype=np.int32), np.empty(0)
         self._stiffness = None
+
+    def _track_sources(self, F: ufl.Form, data_coefficients, name: str) -> None:
+        """What the state part depends on, what the linear path asks to be unchanged, and the empty
+        records of the states the residual was assembled at."""
+        # what the state part depends on: its coefficients' values and its Constants
+        self._state_sources = (list(F.coefficients()), list(F.constants()))
+        # what the linear path asks to be unchanged: the same but for the data coefficients
+        data = {id(c) for c in data_coefficients}
+        if not data <= {id(c) for c in self._state_sources[0]}:
+            raise ValueError(f"{name}: data_coefficients must be coefficients of F")
+        self._path_sources = ([c for c in self._state_sources[0] if id(c) not in data], self._state_sources[1])
+        # (key, F(u)) at the state the last solve started from and at the latest other state
+        self._state_residuals: dict[str, tuple[list[np.ndarray], PETSc.Vec] | None] = {"start": None,
+                                                                                       "latest": None}
+        self._solution_key: list[np.ndarray] | None = None    # where the last solve ended
+
+    def _owned_index_set(self, active_dofs: np.ndarray) -> PETSc.IS:
+        """The global index set of the owned entries of ``active_dofs`` (local unrolled dofs of u)."""
+        imap, bs = self.u.function_space.dofmap.index_map, self.u.function_space.dofmap.index_map_bs
+        owned = np.asarray(active_dofs, dtype=np.int64)
+        owned = owned[owned < imap.size_local * bs]
+        return PETSc.IS().createGeneral((owned + imap.local_range[0] * bs).astype(PETSc.IntType),
+                                        comm=self.u.function_space.mesh.comm)
+
+    def _block_solver(self, reference_blocks, petsc_options) -> "BlockTriangularSolver":
+        """The block-triangular solver of the kept Jacobian, on the owned (global) dofs of each block."""
+        imap, bs = self.u.function_space.dofmap.index_map, self.u.function_space.dofmap.index_map_bs
+        n_owned, start = imap.size_local * bs, imap.local_range[0] * bs
+        owned = [np.sort(np.asarray(d, dtype=np.int64)) for d in reference_blocks]
+        owned = [d[d < n_owned] + start for d in owned]
+        return BlockTriangularSolver(self.u.function_space.mesh.comm, self.name, owned, petsc_options)
 
     @property
     def num_active_dofs(self) -> int:
@@ -824,29 +837,10 @@ class NewtonSolver:
                 initial_residual = self.b.norm()
             elif linear_path and len(self.history) == 1 and previous is not None:
                 # after the one step: does the nonlinear remainder matter?
-                rho = self.b.norm() / initial_residual if initial_residual > 0 else 0.0
-                self.last_linear_ratio = rho
-                if rho <= self.linear_tolerance:
-                    self.stats["linear_steps"] += 1
+                if self._linear_step_accepted(initial_residual):
                     return it - 1
-                self.stats["linear_fallbacks"] += 1
                 linear_path = False                 # strongly nonlinear: the exact path
-            fresh = not self._have_jacobian
-            if fresh:
-                self._assemble_jacobian()
-            # the reference Jacobian is not the one at this iterate: test its steps like stale ones
-            stale = not fresh or not self._exact
-            t0 = time.perf_counter()
-            self._linear_solve()
-            self.stats["solve_time"] += time.perf_counter() - t0
-            self.stats["solves"] += 1
-            self.u.vector.axpy(-1.0, self.du)
-            self.u.x.scatter_forward()
-            du, un = self.du.norm(), self.u.vector.norm()
-            if not (np.isfinite(du) and np.isfinite(un)):
-                raise NewtonError(self.name, f"the iterate contains NaN or Inf at iteration {it}",
-                                  self.history)
-            rel = du / un if un > 0 else du
+            du, un, rel, stale = self._newton_step(it)
             if (stale and previous is not None and rel > self.contraction * previous
                     and rel >= 1e3 * self.rtol):
                 # the kept Jacobian does not contract: undo the step, refactorise here
@@ -858,21 +852,58 @@ class NewtonSolver:
                 continue
             self.history.append(rel)
             self.stats["newton_iterations"] += 1
-            if du <= self.rtol * un or du == 0.0:
+            if self._converged(du, un, rel, previous):
                 return it
-            if previous is not None:
-                # at the round-off floor the correction stops shrinking; accept it there
-                if rel > 0.5 * previous and rel < 1e3 * self.rtol:
-                    return it
-                # linear contraction theta: the error left is about theta / (1 - theta) |du|
-                theta = rel / previous
-                if theta < 0.5 and theta / (1.0 - theta) * rel <= self.rtol:
-                    return it
             if self.reuse == "never" or (previous is not None and rel > self.contraction * previous):
                 self._have_jacobian = False
                 self._exact = True
             previous = rel
         raise NewtonError(self.name, f"no convergence in {self.max_it} iterations", self.history)
+
+    def _linear_step_accepted(self, initial_residual: float) -> bool:
+        """After the one step of the linear path (``self.b`` the new residual): is rho small enough?"""
+        rho = self.b.norm() / initial_residual if initial_residual > 0 else 0.0
+        self.last_linear_ratio = rho
+        if rho <= self.linear_tolerance:
+            self.stats["linear_steps"] += 1
+            return True
+        self.stats["linear_fallbacks"] += 1
+        return False
+
+    def _newton_step(self, it: int) -> tuple[float, float, float, bool]:
+        """u -= J^-1 F (the Jacobian assembled and factorised if none is held); returns
+        ``(|du|, |u|, relative correction, whether the Jacobian was not this iterate's)``."""
+        fresh = not self._have_jacobian
+        if fresh:
+            self._assemble_jacobian()
+        # the reference Jacobian is not the one at this iterate: test its steps like stale ones
+        stale = not fresh or not self._exact
+        t0 = time.perf_counter()
+        self._linear_solve()
+        self.stats["solve_time"] += time.perf_counter() - t0
+        self.stats["solves"] += 1
+        self.u.vector.axpy(-1.0, self.du)
+        self.u.x.scatter_forward()
+        du, un = self.du.norm(), self.u.vector.norm()
+        if not (np.isfinite(du) and np.isfinite(un)):
+            raise NewtonError(self.name, f"the iterate contains NaN or Inf at iteration {it}",
+                              self.history)
+        rel = du / un if un > 0 else du
+        return du, un, rel, stale
+
+    def _converged(self, du: float, un: float, rel: float, previous: float | None) -> bool:
+        """The stopping tests: |du| <= rtol |u|, the round-off floor, or a small enough linear tail."""
+        if du <= self.rtol * un or du == 0.0:
+            return True
+        if previous is not None:
+            # at the round-off floor the correction stops shrinking; accept it there
+            if rel > 0.5 * previous and rel < 1e3 * self.rtol:
+                return True
+            # linear contraction theta: the error left is about theta / (1 - theta) |du|
+            theta = rel / previous
+            if theta < 0.5 and theta / (1.0 - theta) * rel <= self.rtol:
+                return True
+        return False
 
 
 def gather_csr(A: PETSc.Mat, root: int | None = None) -> "scipy.sparse.csr_matrix | None":
