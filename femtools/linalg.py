@@ -27,7 +27,7 @@ from dolfinx.fem import petsc as fem_petsc
 from femtools.errors import NewtonError, SingularSystemError
 
 __all__ = ["DirectSolver", "BlockTriangularSolver", "is_symmetric", "LinearSolver", "NewtonSolver", "SolverStats",
-           "direct_solver", "assemble_residual_vector", "global_norm", "jacobian_at_rest", "SingularSystemError",
+           "direct_solver", "assemble_residual_vector", "jacobian_at_rest", "SingularSystemError",
            "NewtonError", "gather_csr", "schur_complement"]
 
 _counter = itertools.count()
@@ -1023,8 +1023,3 @@ def assemble_residual_vector(form) -> PETSc.Vec:
     vec = fem_petsc.assemble_vector(form)
     vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
     return vec
-
-
-def global_norm(values: np.ndarray) -> float:
-    """Euclidean norm of a replicated interface array."""
-    return float(np.linalg.norm(np.asarray(values).ravel()))

@@ -26,7 +26,7 @@ import sys
 from mpi4py import MPI
 from petsc4py import PETSc
 
-__all__ = ["keep", "collect", "kept"]
+__all__ = ["keep", "collect"]
 
 _kept: list[tuple[MPI.Comm, object]] = []       # (the communicator the mesh was built on, the mesh)
 
@@ -34,11 +34,6 @@ _kept: list[tuple[MPI.Comm, object]] = []       # (the communicator the mesh was
 def keep(mesh, comm: MPI.Comm) -> None:
     """Keep ``mesh`` (hence its communicator) until :func:`collect` finds it unused elsewhere."""
     _kept.append((comm, mesh))
-
-
-def kept(comm: MPI.Comm) -> int:
-    """How many meshes built on ``comm`` are kept."""
-    return sum(1 for c, _ in _kept if c == comm)
 
 
 def collect(comm: MPI.Comm, collected: bool = False) -> None:

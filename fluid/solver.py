@@ -826,11 +826,6 @@ class StokesSolver(FieldSolver):
         """The pressure P (collapsed P1 function); valid after ``solve()``."""
         return self._p
 
-    def traction_function(self, name: str) -> fem.Function:
-        """The consistent traction lambda of interface ``name`` as a P2 function (zero off it)."""
-        self.interface_nodes(name)
-        return self._traction(self._ifaces[name])
-
     def interface_force(self, name: str) -> np.ndarray:
         """Total force ON the fluid over interface ``name``: int_Gamma lambda ds, shape (2,)."""
         self.interface_nodes(name)

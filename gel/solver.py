@@ -96,7 +96,7 @@ from ufl.algorithms import expand_derivatives
 from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
 
-from femtools.functions import interpolate, quadrature_measure, set_function, von_mises
+from femtools.functions import quadrature_measure, set_function, von_mises
 from femtools.interface import InterfaceNodes
 from femtools.linalg import NewtonSolver, assemble_residual_vector, gather_csr, jacobian_at_rest, \
     schur_complement
@@ -589,11 +589,6 @@ class PoroelasticGelSolver(FieldSolver):
             self._jacobian_cache = None
         self._update_velocity()
 
-    @property
-    def time_step(self) -> dict | None:
-        """The current step ``{"dt", "scheme", "a"}``, or None (steady)."""
-        return self.history.step if self.transient else None
-
     def set_steady(self) -> None:
         """v_s = 0 again: the next solves are steady (the history is kept)."""
         self._require_transient("set_steady")
@@ -986,12 +981,6 @@ class PoroelasticGelSolver(FieldSolver):
         """w = v_f - v_s (collapsed P2 vector Function), units of V0."""
         return self._field(0, out, "w")
 
-    def network_velocity(self, out: fem.Function | None = None) -> fem.Function:
-        """v_s (P2 vector Function on the displacement's space, units of V0; zero in a steady solver)."""
-        v = fem.Function(self._sub[1][0], name="v_s") if out is None else out
-        v.x.array[:] = self._velocity.x.array if self.transient else 0.0
-        return v
-
     def interstitial_velocity(self, out: fem.Function | None = None) -> fem.Function:
         """v_f = w + v_s (collapsed P2 vector Function), units of V0."""
         v_f = self._field(0, out, "v_f")
@@ -1030,18 +1019,6 @@ class PoroelasticGelSolver(FieldSolver):
         rel, u, p = ufl.split(self.state)
         v_f = rel + self.v_s if self.transient else rel
         return self._stress_unit * self._forms.total_stress(v_f, u, p, self.coefficients)
-
-    def stress_function(self, which: str = "network") -> fem.Function:
-        """Interpolate a stress into a DG1 tensor space (units of mu_s).
-
-        Args:
-            which: ``"network"`` (sigma_s) or ``"total"`` (the mixture stress).
-        """
-        exprs = {"network": self.network_stress, "total": self.total_stress}
-        if which not in exprs:
-            raise ValueError(f"which must be one of {sorted(exprs)}, got {which!r}")
-        T = fem.TensorFunctionSpace(self.mesh, ("DG", 1))
-        return interpolate(exprs[which](), T)
 
     def reset(self) -> None:
         """Zero the state and the history (the next solve starts from rest)."""
