@@ -10,6 +10,9 @@ The meshes are built from :class:`ModelArrays`, the raw arrays of a meshed
 gmsh model, which can be read once from the model (or from a cache) and
 reused for every region.  gmsh itself (0.45 s to import) is imported only
 where a model is read, through :func:`femtools.gmshimport.import_gmsh`.
+
+:func:`rectangle_mesh` is the one mesh made without gmsh: dolfinx's
+triangulated rectangle with its four sides tagged (flat layers, tests).
 """
 
 from __future__ import annotations
@@ -23,13 +26,15 @@ from mpi4py import MPI
 
 import ufl
 from dolfinx import cpp as _cpp
-from dolfinx.mesh import create_mesh, meshtags_from_entities
+from dolfinx.mesh import (CellType, DiagonalType, create_mesh, create_rectangle, locate_entities_boundary, meshtags,
+                          meshtags_from_entities)
 
 from femtools import petscgarbage
 from femtools.gmshimport import import_gmsh
 
 __all__ = ["model_to_mesh", "model_to_region_mesh", "connected_components", "PARTITIONER", "ModelArrays",
-           "settle_coordinate_element", "as_tags", "tagged_facets"]
+           "settle_coordinate_element", "as_tags", "tagged_facets", "rectangle_mesh", "LEFT", "RIGHT", "BOTTOM",
+           "TOP"]
 
 #: gmsh element type -> (cell shape, degree) of the elements meshes are made of (dolfinx.io.gmshio's table)
 _GMSH_CELLS = {1: ("interval", 1), 2: ("triangle", 1), 3: ("quadrilateral", 1), 4: ("tetrahedron", 1),
@@ -232,6 +237,32 @@ def model_to_region_mesh(model, comm: MPI.Comm, rank: int, region_tags: typing.I
     """
     msh, cell_tags, facet_tags = _model_mesh(model, comm, rank, np.asarray(list(region_tags), dtype=np.int64), gdim)
     return (msh, cell_tags, facet_tags) if with_cell_tags else (msh, facet_tags)
+
+
+#: facet tags of the sides of :func:`rectangle_mesh`: x = x0, x = x1, y = y0, y = y1
+LEFT, RIGHT, BOTTOM, TOP = 1, 2, 3, 4
+
+
+def rectangle_mesh(x0: float, y0: float, x1: float, y1: float, nx: int, ny: int,
+                   comm: MPI.Comm = MPI.COMM_WORLD, diagonal: DiagonalType = DiagonalType.right):
+    """Rectangle [x0, x1] x [y0, y1] with nx x ny cell pairs (dolfinx's ``create_rectangle``, P1
+    triangles); returns ``(mesh, facet_tags)``.
+
+    Facet tags: LEFT (x = x0) = 1, RIGHT (x = x1) = 2, BOTTOM (y = y0) = 3, TOP (y = y1) = 4.
+    """
+    msh = create_rectangle(comm, [np.array([x0, y0]), np.array([x1, y1])], [nx, ny],
+                           CellType.triangle, diagonal=diagonal)
+    tol = 1e-10 * max(x1 - x0, y1 - y0)
+    sides = ((LEFT, 0, x0), (RIGHT, 0, x1), (BOTTOM, 1, y0), (TOP, 1, y1))
+    idx, val = [], []
+    for tag, axis, coord in sides:
+        facets = locate_entities_boundary(
+            msh, 1, lambda x, a=axis, c=coord: np.isclose(x[a], c, rtol=0.0, atol=tol))
+        idx.append(facets)
+        val.append(np.full(facets.size, tag, dtype=np.int32))
+    idx, val = np.hstack(idx), np.hstack(val)
+    order = np.argsort(idx)
+    return msh, meshtags(msh, 1, idx[order].astype(np.int32), val[order])
 
 
 def connected_components(msh) -> tuple[np.ndarray, int]:

@@ -67,7 +67,7 @@ from femtools.functions import integrate
 from femtools.interface import InterfaceNodes
 from fluid import FluidInterface, StokesSolver
 from gel import GelParameters, PoroelasticGelSolver
-from gel.testing import BOTTOM, LEFT, RIGHT, TOP, rectangle
+from femtools.mesh import BOTTOM, LEFT, RIGHT, TOP, rectangle_mesh as rectangle
 from gelcell.boundaries import DeviceBoundaries
 from gelcell.device import FluidParticipant, GelParticipant, coupling_config, coupling_data
 from gelcell.geometry import Tag

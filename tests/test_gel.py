@@ -24,10 +24,11 @@ from dolfinx import fem
 
 from femtools.functions import integrate, interpolate, quadrature_measure
 from femtools.interface import InterfaceNodes
+from femtools.mesh import BOTTOM, LEFT, RIGHT, TOP, rectangle_mesh
 from gel import forms
 from gel.parameters import GelParameters
 from gel.solver import PoroelasticGelSolver
-from gel.testing import BOTTOM, LEFT, RIGHT, TOP, line_weights, rectangle
+from gel_cases import line_weights
 from mpi_run import run_mpi
 
 COMM = MPI.COMM_WORLD
@@ -63,7 +64,7 @@ def test_brinkman_channel_profile_and_rate():
     Q = (1 - phi_s) * G / zeta * (2 * h - 2 * delta * np.tanh(h / delta))
     sizes, errors, flux_errors = [], [], []
     for ny in (20, 40, 80):                      # mesh size delta/2, delta/4, delta/8
-        msh, ft = rectangle(0.0, -h, Lx, h, 2, ny)
+        msh, ft = rectangle_mesh(0.0, -h, Lx, h, 2, ny)
         gel = PoroelasticGelSolver(msh, ft, prm, no_slip=(BOTTOM, TOP),
                                    fluid_interfaces={"in": LEFT, "out": RIGHT},
                                    dirichlet=[((LEFT, RIGHT), "v_f", 0.0, 1)])
@@ -104,7 +105,7 @@ def test_darcy_layer_flux_and_pressure_drop(eta):
     """
     prm = GelParameters.viscous_units(eta=eta, Ca=1e-12)            # baseline phi_s0, xi
     L, p_in = 1.0, 1.0
-    msh, ft = rectangle(0.0, 0.0, L, 0.25, 4, 1)
+    msh, ft = rectangle_mesh(0.0, 0.0, L, 0.25, 4, 1)
     gel = PoroelasticGelSolver(msh, ft, prm, symmetry=[((BOTTOM, TOP), 1)],
                                fluid_interfaces={"in": LEFT, "out": RIGHT}, dirichlet=[(RIGHT, "u", 0.0)])
     n_in = gel.interface_points("in").shape[0]
@@ -132,7 +133,7 @@ def test_darcy_layer_flux_and_pressure_drop(eta):
 # 3 + 5 (normal). Flow-induced compression of a column (verification.md 6 intro, 6a)
 # --------------------------------------------------------------------------
 def _column(prm, L=1.0, width=0.1, ny=8):
-    msh, ft = rectangle(0.0, -L, width, 0.0, 2, ny)
+    msh, ft = rectangle_mesh(0.0, -L, width, 0.0, 2, ny)
     gel = PoroelasticGelSolver(msh, ft, prm, symmetry=[((LEFT, RIGHT), 0)],
                                fluid_interfaces={"top": TOP}, dirichlet=[(BOTTOM, "u", 0.0)])
     return msh, ft, gel
@@ -198,7 +199,7 @@ def test_column_uniaxial_neo_hookean_law_through_cell_force():
     prm = GelParameters(phi_s0=0.1, lambda_s=1.5, Ca=1.0)
     L, width, J = 1.0, 0.1, 0.9
     P = -prm.phi_s0 / J * ((J**2 - 1) / J + prm.lambda_s * (J - 1))
-    msh, ft = rectangle(0.0, -L, width, 0.0, 2, 4)
+    msh, ft = rectangle_mesh(0.0, -L, width, 0.0, 2, 4)
     gel = PoroelasticGelSolver(msh, ft, prm, symmetry=[((LEFT, RIGHT), 0)],
                                cell_interfaces={"cell": TOP}, dirichlet=[(BOTTOM, "u", 0.0)])
     w = line_weights(gel.interface_points("cell"), 0)
@@ -238,7 +239,7 @@ def test_column_stretched_sideways_sees_the_first_piola_stress():
     L, width, l1, l2 = 1.0, 0.1, 1.1, 0.9
     J = l1 * l2
     t = prm.phi_s0 * ((l2**2 - 1) / J + prm.lambda_s * (J - 1)) / l2
-    msh, ft = rectangle(0.0, -L, width, 0.0, 2, 4)
+    msh, ft = rectangle_mesh(0.0, -L, width, 0.0, 2, 4)
     gel = PoroelasticGelSolver(msh, ft, prm, cell_interfaces={"cell": TOP},
                                dirichlet=[(LEFT, "u", 0.0, 0), (RIGHT, "u", (l1 - 1) * width, 0),
                                           (BOTTOM, "u", 0.0, 1)], kinematics="finite")
@@ -268,7 +269,7 @@ def test_shear_layer_tangential_split():
     """
     prm = GelParameters.viscous_units(phi_s0=0.1, xi=90.0, beta=0.005)
     H, width, tau = 0.5, 0.2, 1.0
-    msh, ft = rectangle(0.0, -H, width, 0.0, 2, 40)
+    msh, ft = rectangle_mesh(0.0, -H, width, 0.0, 2, 40)
     gel = PoroelasticGelSolver(msh, ft, prm, no_slip=BOTTOM, symmetry=[((LEFT, RIGHT), 1)],
                                fluid_interfaces={"top": TOP})
     n = gel.interface_points("top").shape[0]
@@ -313,7 +314,7 @@ def _mms_errors(prm, amp, N):
     (I15), plus Dirichlet v_f,y (tangential): the fluid interface's normal
     split fixes the pressure level.  Body forces = strong residuals.
     """
-    msh, ft = rectangle(0.0, 0.0, 1.0, 1.0, N, N)
+    msh, ft = rectangle_mesh(0.0, 0.0, 1.0, 1.0, N, N)
     x = ufl.SpatialCoordinate(msh)
     v, u, p = _exact(x, ufl, amp)
     v, u = ufl.as_vector(v), ufl.as_vector(u)
@@ -402,7 +403,7 @@ def _scaled_problem(prm, N=8):
     Inputs are given in units of mu_s and converted with s; outputs are
     converted back with s (stresses) and d (displacements).
     """
-    msh, ft = rectangle(0.0, -0.5, 1.0, 0.0, N, N)
+    msh, ft = rectangle_mesh(0.0, -0.5, 1.0, 0.0, N, N)
     gel = PoroelasticGelSolver(msh, ft, prm, no_slip=BOTTOM, symmetry=[((LEFT, RIGHT), 0)],
                                fluid_interfaces={"top": TOP})
     X = gel.interface_points("top")
@@ -437,7 +438,7 @@ def _two_sided(cell_path: bool, t0=(0.3, -0.5)):
     nodal load of a uniform traction t0, or the same t0 as a fluid-interface
     traction with v_f = 0 imposed (which makes the fluid-phase terms vanish)."""
     prm = GelParameters.viscous_units()
-    msh, ft = rectangle(0.0, 0.0, 1.0, 0.5, 6, 3)
+    msh, ft = rectangle_mesh(0.0, 0.0, 1.0, 0.5, 6, 3)
     kw = dict(no_slip=LEFT, symmetry=[(RIGHT, 0)])
     if cell_path:
         gel = PoroelasticGelSolver(msh, ft, prm, fluid_interfaces={"top": TOP},
@@ -470,7 +471,7 @@ def test_factorisation_reused_across_coupling_iterations():
     """Device parameters: new interface data must not trigger a refactorisation,
     and the result must equal a fresh solve."""
     prm = GelParameters.viscous_units()
-    msh, ft = rectangle(0.0, -0.5, 1.0, 0.0, 8, 4)
+    msh, ft = rectangle_mesh(0.0, -0.5, 1.0, 0.0, 8, 4)
     def make():
         return PoroelasticGelSolver(msh, ft, prm, no_slip=BOTTOM, symmetry=[((LEFT, RIGHT), 0)],
                                     fluid_interfaces={"top": TOP})
@@ -522,7 +523,7 @@ def test_parameter_validation(name, value):
 
 
 def test_solver_argument_validation():
-    msh, ft = rectangle(0.0, 0.0, 1.0, 1.0, 2, 2)
+    msh, ft = rectangle_mesh(0.0, 0.0, 1.0, 1.0, 2, 2)
     prm = GelParameters.viscous_units()
     with pytest.raises(ValueError, match="no_slip"):
         PoroelasticGelSolver(msh, ft, prm, no_slip=99)

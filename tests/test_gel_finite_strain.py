@@ -30,9 +30,9 @@ from dolfinx import fem
 
 from femtools.errors import NewtonError
 from femtools.interface import InterfaceNodes
+from femtools.mesh import BOTTOM, LEFT, RIGHT, TOP, rectangle_mesh
 from gel.parameters import GelParameters
 from gel.solver import PoroelasticGelSolver
-from gel.testing import BOTTOM, LEFT, RIGHT, TOP, rectangle
 from test_gel import l2 as norm_l2, rates
 
 COMM = MPI.COMM_WORLD
@@ -80,7 +80,7 @@ def test_drained_column_compression(strain, confined):
     l2 = 1.0 - strain
     l1 = 1.0 if confined else uniaxial_lateral_stretch(l2, PRM.lambda_s)
     t = PRM.phi_s0 * network_cauchy(np.diag([l1, l2]), PRM.lambda_s)[1, 1] / l2
-    msh, ft = rectangle(0.0, 0.0, W, H, 2, 4)
+    msh, ft = rectangle_mesh(0.0, 0.0, W, H, 2, 4)
     sides = [((LEFT, RIGHT), 0)] if confined else [(LEFT, 0)]
     gel = PoroelasticGelSolver(msh, ft, PRM, symmetry=sides + [(BOTTOM, 1)], tractions=[(TOP, (0.0, t))],
                                kinematics="finite")
@@ -103,7 +103,7 @@ def test_unconfined_compression_small_path_misses_the_first_piola_stress():
     l2 = 1.0 - strain
     l1 = uniaxial_lateral_stretch(l2, PRM.lambda_s)
     t = PRM.phi_s0 * network_cauchy(np.diag([l1, l2]), PRM.lambda_s)[1, 1] / l2
-    msh, ft = rectangle(0.0, 0.0, W, H, 2, 4)
+    msh, ft = rectangle_mesh(0.0, 0.0, W, H, 2, 4)
     gel = PoroelasticGelSolver(msh, ft, PRM, symmetry=[(LEFT, 0), (BOTTOM, 1)], tractions=[(TOP, (0.0, t))])
     gel.solve()
     top = InterfaceNodes(gel.displacement().function_space, ft, TOP).from_function(gel.displacement())
@@ -125,7 +125,7 @@ def test_simple_shear_of_a_layer(gamma):
     (sigma in place of P, gradients in X) does not: it is checked to miss it (or to fail).
     """
     H, W = 0.5, 1.0
-    msh, ft = rectangle(0.0, 0.0, W, H, 4, 2)
+    msh, ft = rectangle_mesh(0.0, 0.0, W, H, 4, 2)
     g = PRM.phi_s0 * gamma
     loads = [(TOP, (g, 0.0)), (RIGHT, (0.0, g)), (LEFT, (0.0, -g))]
     x = ufl.SpatialCoordinate(msh)
@@ -180,7 +180,7 @@ def test_darcy_layer_rotated_and_stretched():
     r = nu * phi_s / (prm.eta * phi_f)
     v = p_in / (prm.xi * nu * phi_s * l1 * L + 2 * r)
     e = R[:, 0]
-    msh, ft = rectangle(0.0, 0.0, L, H, 4, 1)
+    msh, ft = rectangle_mesh(0.0, 0.0, L, H, 4, 1)
 
     def homogeneous(X):
         return (F - np.eye(2)) @ X[:2]
@@ -222,7 +222,7 @@ def test_exact_newton_converges_quadratically():
     l2 = 1.0 - strain
     l1 = uniaxial_lateral_stretch(l2, PRM.lambda_s)
     t = PRM.phi_s0 * network_cauchy(np.diag([l1, l2]), PRM.lambda_s)[1, 1] / l2
-    msh, ft = rectangle(0.0, 0.0, 0.25, 1.0, 2, 4)
+    msh, ft = rectangle_mesh(0.0, 0.0, 0.25, 1.0, 2, 4)
     gel = PoroelasticGelSolver(msh, ft, PRM, symmetry=[(LEFT, 0), (BOTTOM, 1)], tractions=[(TOP, (0.0, t))],
                                kinematics="finite", newton_reuse="never", newton_rtol=1e-14)
     gel.solve()
@@ -311,7 +311,7 @@ def _mms_errors(prm, fns, N):
     Dirichlet v_f and u on x = 0, y = 0, y = 1; x = 1 is a fluid interface fed with the exact
     nominal traction and V.  The loads are interpolated in P4 (their error, O(h^5), is far below
     the discretisation error)."""
-    msh, ft = rectangle(0.0, 0.0, 1.0, 1.0, N, N)
+    msh, ft = rectangle_mesh(0.0, 0.0, 1.0, 1.0, N, N)
     V4 = fem.VectorFunctionSpace(msh, ("Lagrange", 4))
     Q4 = fem.FunctionSpace(msh, ("Lagrange", 4))
     f_w, f_z, f_q = _interpolated(fns["f_w"], V4), _interpolated(fns["f_z"], V4), _interpolated(fns["f_q"], Q4)

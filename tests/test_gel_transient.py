@@ -28,9 +28,9 @@ from dolfinx import fem
 
 from femtools.functions import integrate
 from femtools.linalg import assemble_residual_vector
+from femtools.mesh import BOTTOM, LEFT, RIGHT, TOP, rectangle_mesh
 from gel.parameters import GelParameters
 from gel.solver import PoroelasticGelSolver
-from gel.testing import BOTTOM, LEFT, RIGHT, TOP, rectangle
 
 COMM = MPI.COMM_WORLD
 PRM = GelParameters.viscous_units(phi_s0=0.01, xi=1e7, lambda_s=1.0, Ca=1e-9)
@@ -74,7 +74,7 @@ class TerzaghiColumn:
 
     def __init__(self, ny=40, L=1.0, p0=1.0):
         self.L, self.p0 = L, p0
-        msh, ft = rectangle(0.0, -L, 0.1, 0.0, 2, ny)
+        msh, ft = rectangle_mesh(0.0, -L, 0.1, 0.0, 2, ny)
         self.mesh = msh
         self.gel = PoroelasticGelSolver(msh, ft, PRM, no_slip=BOTTOM, symmetry=[((LEFT, RIGHT), 0)],
                                         dirichlet=[(TOP, "p", 0.0)], tractions=[(TOP, (0.0, -p0))],
@@ -173,7 +173,7 @@ class MandelQuarter:
 
     def __init__(self, nx=24, ny=6, a=1.0, b=0.25, force=1.0):
         self.a, self.b, self.F = a, b, force
-        msh, ft = rectangle(0.0, 0.0, a, b, nx, ny)
+        msh, ft = rectangle_mesh(0.0, 0.0, a, b, nx, ny)
         self.plate = fem.Constant(msh, 0.0)
         self.gel = PoroelasticGelSolver(msh, ft, PRM, symmetry=[(LEFT, 0), (BOTTOM, 1)],
                                         dirichlet=[(RIGHT, "p", 0.0), (TOP, "w", 0.0, 1),

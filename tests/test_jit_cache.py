@@ -110,10 +110,9 @@ def test_a_first_compilation_leaves_the_arguments_of_a_settled_mesh_equal(tmp_pa
     import ufl
     from dolfinx import fem, mesh
 
-    from femtools.mesh import settle_coordinate_element
+    from femtools.mesh import LEFT, RIGHT, rectangle_mesh, settle_coordinate_element
     from gel.parameters import GelParameters
     from gel.solver import PoroelasticGelSolver
-    from gel.testing import LEFT, RIGHT, rectangle
 
     def made_before_and_after_a_compilation(msh, cache):
         V = fem.FunctionSpace(msh, ("Lagrange", 1))
@@ -132,7 +131,7 @@ def test_a_first_compilation_leaves_the_arguments_of_a_settled_mesh_equal(tmp_pa
     form = (before + after) * ufl.dx
     assert len(form.arguments()) == 1
     # the field solvers settle the mesh they are given
-    msh, ft = rectangle(0.0, 0.0, 1.0, 0.25, 2, 1)
+    msh, ft = rectangle_mesh(0.0, 0.0, 1.0, 0.25, 2, 1)
     assert msh.ufl_domain().ufl_coordinate_element().variant() is None
     PoroelasticGelSolver(msh, ft, GelParameters(phi_s0=0.1, lambda_s=1.5, xi=4.5e4, eta=0.02, Ca=1e-6),
                          fluid_interfaces={"in": LEFT, "out": RIGHT}, kinematics="finite", no_slip=[RIGHT])

@@ -32,8 +32,8 @@ from cell import meshes
 from femtools.functions import quadrature_measure
 from femtools.interface import InterfaceMass, InterfaceNodes
 from femtools.linalg import BlockTriangularSolver, DirectSolver, NewtonSolver, is_symmetric, schur_complement
+from femtools.mesh import BOTTOM, LEFT, RIGHT, TOP, rectangle_mesh
 from gel import GelParameters, PoroelasticGelSolver
-from gel.testing import BOTTOM, LEFT, RIGHT, TOP, rectangle
 
 COMM = MPI.COMM_WORLD
 
@@ -50,7 +50,7 @@ def owned(f: fem.Function) -> np.ndarray:
 
 # -- the gel: a column under the fluid's traction and velocity --------------------------------
 def _column(params: GelParameters, **kwargs) -> PoroelasticGelSolver:
-    msh, ft = rectangle(0.0, -1.0, 0.2, 0.0, 3, 12)
+    msh, ft = rectangle_mesh(0.0, -1.0, 0.2, 0.0, 3, 12)
     return PoroelasticGelSolver(msh, ft, params, symmetry=[((LEFT, RIGHT), 0)], no_slip=BOTTOM,
                                 fluid_interfaces={"top": TOP}, **kwargs)
 
@@ -208,7 +208,7 @@ def test_block_triangular_solve_is_the_solution():
 # -- the interface mass matrix ------------------------------------------------------------
 def test_interface_mass_is_the_restricted_mass_matrix():
     """M lambda for lambda = (x, x y) on Gamma equals int lambda . s ds at the interface nodes."""
-    msh, ft = rectangle(0.0, 0.0, 1.0, 0.5, 4, 3)
+    msh, ft = rectangle_mesh(0.0, 0.0, 1.0, 0.5, 4, 3)
     V = fem.VectorFunctionSpace(msh, ("Lagrange", 2))
     nodes = InterfaceNodes(V, ft, TOP)
     ds = quadrature_measure("ds", msh, ft, degree=4)(TOP)
@@ -357,7 +357,7 @@ def test_interface_stiffness_equals_the_robin_form():
     once with the Robin term in the form, once with the interface mass matrix as the stiffness
     (the top's left end is a Dirichlet node: its row and column are left out).
     """
-    msh, ft = rectangle(0.0, 0.0, 1.0, 0.5, 6, 4)
+    msh, ft = rectangle_mesh(0.0, 0.0, 1.0, 0.5, 6, 4)
     V = fem.VectorFunctionSpace(msh, ("Lagrange", 2))
     ds = quadrature_measure("ds", msh, ft, degree=4)
     v = ufl.TestFunction(V)
@@ -432,7 +432,7 @@ def test_cell_interface_jacobian_is_its_linear_response():
 def test_nodal_loads_on_a_repeated_dof_add_up():
     """``set_nodal_loads``: a dof listed twice (a node shared by two interfaces) takes both loads,
     the same solution as one load of their sum."""
-    msh, ft = rectangle(0.0, 0.0, 1.0, 0.5, 6, 4)
+    msh, ft = rectangle_mesh(0.0, 0.0, 1.0, 0.5, 6, 4)
     V = fem.VectorFunctionSpace(msh, ("Lagrange", 2))
     v = ufl.TestFunction(V)
     nodes = InterfaceNodes(V, ft, TOP)

@@ -16,10 +16,9 @@ from mpi4py import MPI
 from cell import NeoHookeanCellSolver
 from cell import meshes
 from femtools.errors import SingularSystemError
-from femtools.mesh import connected_components
+from femtools.mesh import BOTTOM, LEFT, RIGHT, TOP, connected_components, rectangle_mesh
 from fluid import FluidInterface, StokesSolver
 from gel import GelParameters, PoroelasticGelSolver
-from gel.testing import BOTTOM, LEFT, RIGHT, TOP, rectangle
 from gelcell.boundaries import device_boundaries
 from gelcell.geometry import build_device
 from gelcell.parameters import CaseParameters
@@ -27,7 +26,7 @@ from gelcell.parameters import CaseParameters
 
 def _column(**anchoring):
     """A gel column pushed down by the fluid on top, its sides symmetry lines (u_x = 0)."""
-    msh, ft = rectangle(0.0, -1.0, 0.1, 0.0, 2, 8)
+    msh, ft = rectangle_mesh(0.0, -1.0, 0.1, 0.0, 2, 8)
     gel = PoroelasticGelSolver(msh, ft, GelParameters.viscous_units(), symmetry=[((LEFT, RIGHT), 0)],
                                fluid_interfaces={"top": TOP}, **anchoring)
     X = gel.interface_points("top")
@@ -133,7 +132,7 @@ def test_tags_are_normalised_in_one_place_and_bad_ones_named():
         as_tags("12", "no_slip")
     with pytest.raises(ValueError, match="^symmetry: empty tag list"):
         as_tags([], "symmetry")
-    msh, ft = rectangle(0.0, 0.0, 1.0, 1.0, 2, 2)
+    msh, ft = rectangle_mesh(0.0, 0.0, 1.0, 1.0, 2, 2)
     with pytest.raises(TypeError, match="^no_slip: tags must be"):
         PoroelasticGelSolver(msh, ft, GelParameters.viscous_units(), no_slip="1")
     with pytest.raises(ValueError, match="^FluidInterface.tags: empty tag list"):
@@ -145,7 +144,7 @@ def test_boundary_values_are_read_in_one_place_and_bad_ones_named():
     one per component or a callable; another size or NaN is refused with the input's name."""
     from dolfinx import fem
 
-    msh, ft = rectangle(0.0, 0.0, 1.0, 1.0, 2, 2)
+    msh, ft = rectangle_mesh(0.0, 0.0, 1.0, 1.0, 2, 2)
     V = fem.VectorFunctionSpace(msh, ("Lagrange", 1))
     from femtools.functions import set_function
 

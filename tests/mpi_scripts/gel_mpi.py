@@ -12,6 +12,7 @@ back, so the two unit choices must print the same numbers.
 """
 
 import json
+import os
 import sys
 import time
 
@@ -19,16 +20,19 @@ import numpy as np
 
 from mpi4py import MPI
 
+from femtools.mesh import BOTTOM, LEFT, RIGHT, TOP, rectangle_mesh
 from gel.parameters import GelParameters
 from gel.solver import PoroelasticGelSolver
-from gel.testing import BOTTOM, LEFT, RIGHT, TOP, line_weights, rectangle
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))     # tests/: gel_cases
+from gel_cases import line_weights  # noqa: E402
 
 comm = MPI.COMM_WORLD
 nx = int(sys.argv[1]) if len(sys.argv) > 1 else 12
 units = sys.argv[2] if len(sys.argv) > 2 else "viscous"
 params = {"viscous": GelParameters.viscous_units(), "paper": GelParameters()}[units]
 to_solver = params.Ca / params.stress_scale                  # viscous stress unit -> solver's
-msh, ft = rectangle(0.0, 0.0, 1.0, 0.5, nx, nx // 2, comm)
+msh, ft = rectangle_mesh(0.0, 0.0, 1.0, 0.5, nx, nx // 2, comm)
 gel = PoroelasticGelSolver(msh, ft, params, no_slip=LEFT, symmetry=[(RIGHT, 0)],
                            fluid_interfaces={"Gamma1": TOP}, cell_interfaces={"Gamma2": BOTTOM})
 Xt, Xb = gel.interface_points("Gamma1"), gel.interface_points("Gamma2")

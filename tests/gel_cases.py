@@ -1,44 +1,17 @@
-"""Small helpers for the gel's verification tests and demos (no physics here).
+"""Helpers of the gel tests (``tests/test_gel*.py``, ``tests/mpi_scripts/gel_mpi.py``); no physics here.
 
-* ``rectangle``: a triangulated rectangle with its four sides tagged.
 * ``line_weights``: the P2 (Simpson) weights of nodes on a straight interface,
   i.e. the consistent nodal load of a unit traction and the quadrature that
   integrates a P2 trace exactly.
+
+The tagged rectangle the gel tests run on is :func:`femtools.mesh.rectangle_mesh`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from mpi4py import MPI
-
-from dolfinx import mesh as dmesh
-
-__all__ = ["LEFT", "RIGHT", "BOTTOM", "TOP", "rectangle", "line_weights"]
-
-LEFT, RIGHT, BOTTOM, TOP = 1, 2, 3, 4
-
-
-def rectangle(x0: float, y0: float, x1: float, y1: float, nx: int, ny: int,
-              comm: MPI.Comm = MPI.COMM_WORLD,
-              diagonal: dmesh.DiagonalType = dmesh.DiagonalType.right):
-    """Rectangle [x0, x1] x [y0, y1] with nx x ny cell pairs; returns ``(mesh, facet_tags)``.
-
-    Facet tags: LEFT (x = x0) = 1, RIGHT (x = x1) = 2, BOTTOM (y = y0) = 3, TOP (y = y1) = 4.
-    """
-    msh = dmesh.create_rectangle(comm, [np.array([x0, y0]), np.array([x1, y1])], [nx, ny],
-                                 dmesh.CellType.triangle, diagonal=diagonal)
-    tol = 1e-10 * max(x1 - x0, y1 - y0)
-    sides = ((LEFT, 0, x0), (RIGHT, 0, x1), (BOTTOM, 1, y0), (TOP, 1, y1))
-    idx, val = [], []
-    for tag, axis, coord in sides:
-        facets = dmesh.locate_entities_boundary(
-            msh, 1, lambda x, a=axis, c=coord: np.isclose(x[a], c, rtol=0.0, atol=tol))
-        idx.append(facets)
-        val.append(np.full(facets.size, tag, dtype=np.int32))
-    idx, val = np.hstack(idx), np.hstack(val)
-    order = np.argsort(idx)
-    return msh, dmesh.meshtags(msh, 1, idx[order].astype(np.int32), val[order])
+__all__ = ["line_weights"]
 
 
 def line_weights(points: np.ndarray, axis: int) -> np.ndarray:
