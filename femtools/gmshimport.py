@@ -3,7 +3,7 @@
 gmsh 4.8's module sets SIGINT to the default action when first imported
 (``oldsig = signal.signal(SIGINT, SIG_DFL)``) and puts ``oldsig`` back in
 ``gmsh.finalize()``.  gmsh is imported only where a model is built or read
-(0.45 s: it loads libgmsh), long after the CLI installed its handlers, so
+(its import loads libgmsh), long after the CLI installed its handlers, so
 both the import and a later ``finalize`` would drop the CLI's Ctrl-C
 handling.  This module imports nothing heavy, so light modules can use it.
 """

@@ -3,9 +3,9 @@
 FFCx 0.5 finds a cached module with a fresh ``importlib.machinery.FileFinder``
 on the cache directory, and a fresh finder lists the whole directory
 (``os.listdir``) to look up one name.  The cache holds every form ever
-compiled on the machine (thousands of files on a development machine), so each
-of the ~80 forms of a device run paid a listing: ~2 ms each, a quarter of a
-second per run, more as the cache grows.
+compiled on the machine (thousands of files on a development machine), so
+every form a run loads pays for a listing of all of them, and more as the
+cache grows (docs/femtools-costs.md).
 
 :func:`install` wraps ``ffcx.codegeneration.jit.get_cached_module``: a module
 whose compilation has finished (FFCx's ``<name>.c.cached`` marker exists) is

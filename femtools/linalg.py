@@ -49,10 +49,10 @@ NULL_PIVOT_THRESHOLD = 1e-12
 MUMPS_ORDERINGS = {0: "AMD", 2: "AMF", 4: "PORD", 6: "QAMD", 7: "automatic"}
 
 #: MUMPS's automatic choice (PORD for some of the device's matrices, AMF for others).
-#: AMF for all analyses faster (PORD calls clock(), a system call, at every
-#: elimination stage) but its elimination trees back-substitute more slowly: a
-#: time-dependent run, ~1100 back-substitutions per factorisation, took 1.11x as
-#: long (README "Performance").  Steady device runs, which factorise once and
+#: AMF analyses faster (PORD calls clock(), a system call, at every elimination
+#: stage) but its elimination trees back-substitute more slowly, which a
+#: time-dependent run, with many back-substitutions per factorisation, pays for
+#: (docs/femtools-costs.md).  Steady device runs, which factorise once and
 #: back-substitute a few times, ask for AMF (gelcell.device.STEADY_SOLVER_OPTIONS).
 DEFAULT_ORDERING = 7
 
@@ -237,8 +237,8 @@ SYMMETRY_TOLERANCE = 1e-12
 def is_symmetric(M: PETSc.Mat, tolerance: float = SYMMETRY_TOLERANCE) -> bool:
     """max_ij |M_ij - M_ji| <= tolerance ||M||_inf, on a symmetric sparsity pattern (collective).
 
-    Entrywise, without forming M^T (a parallel transpose and an axpy of
-    different patterns took 0.3 s per run at mesh size 0.5): PETSc's own walk
+    Entrywise, without forming M^T (which takes a parallel transpose and an axpy
+    of different patterns; docs/femtools-costs.md): PETSc's own walk
     through the rows of the sequential matrix, or of each rank's diagonal
     block; on several ranks the entries whose column another rank owns are
     sent to that rank as (j, i, M_ij) and compared with its own.  A pattern
@@ -948,8 +948,7 @@ def schur_complement(K: "scipy.sparse.spmatrix", keep: np.ndarray) -> np.ndarray
 
     By MUMPS's Schur-complement option (ICNTL(19)) in one sequential LU of K
     with ``keep`` eliminated last: the cost of one factorisation, against one
-    back-substitution per kept index (SuperLU with ~400 dense right-hand
-    sides took 13x as long at a few thousand unknowns).  Local to the calling
+    back-substitution per kept index (docs/femtools-costs.md).  Local to the calling
     rank (``K`` replicated, e.g. from :func:`gather_csr`); petsc4py 3.18 does not
     wrap PETSc's Schur calls, so they are called through ctypes.  MUMPS does
     not report a singular eliminated block on this path (a zero row there

@@ -8,8 +8,8 @@ interface maps rely on.
 
 The meshes are built from :class:`ModelArrays`, the raw arrays of a meshed
 gmsh model, which can be read once from the model (or from a cache) and
-reused for every region.  gmsh itself (0.45 s to import) is imported only
-where a model is read, through :func:`femtools.gmshimport.import_gmsh`.
+reused for every region.  gmsh itself (its import loads libgmsh) is imported
+only where a model is read, through :func:`femtools.gmshimport.import_gmsh`.
 
 :func:`rectangle_mesh` is the one mesh made without gmsh: dolfinx's
 triangulated rectangle with its four sides tagged (flat layers, tests).

@@ -9,8 +9,8 @@ on its communicator's garbage list, to be destroyed by the collective
 communicator it was built on, and every solver's matrices, vectors and
 factorisations live on it.  When the mesh goes, dolfinx frees that duplicate
 and the garbage can no longer be reached (a cleanup then crashes): each
-device solved used to leave its factorisations behind (25 MB per device at
-mesh-size 3, a sweep or a study in one process growing without bound).
+device solved would leave its factorisations behind, and a sweep or a study in
+one process would grow without bound (docs/femtools-costs.md).
 
 So the meshes built by :mod:`femtools.mesh` are kept here (:func:`keep`), and
 :func:`collect`, at points every rank reaches together (building a device,

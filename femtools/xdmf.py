@@ -6,10 +6,9 @@ attributes hold the field at the mesh's geometry nodes, vectors padded to three
 components, in ``<stem>.h5:/Function/<name>/<time>``.
 
 Why not ``write_function``: on a mesh of degree 2 (the device meshes, whose
-curved edges are P2) dolfinx 0.5 takes ~75 ms per call whatever the field
-(10k cells; 1–2 ms on the same mesh with straight edges), so a steady device
-run spent ~0.45 s writing 16 fields and a time-dependent run as much per frame.
-Here a field in the coordinate element's space is a reordering of its dof
+curved edges are P2) dolfinx 0.5's call is slow whatever the field, far slower
+than on the same mesh with straight edges, and a run makes one call per field
+and frame (docs/femtools-costs.md).  Here a field in the coordinate element's space is a reordering of its dof
 values (the geometry nodes are its dofs); any other Lagrange field is first
 interpolated into that space on its own mesh (no form compilation).  The values
 are gathered on rank 0 in the global node order of the mesh dataset and
