@@ -92,19 +92,52 @@ def to_jsonable(obj: Any) -> Any:
     * numpy arrays become (nested) lists, numpy scalars ``bool``, ``int`` or ``float``;
     * NaN, +inf and -inf (Python or numpy floats) become ``None``;
     * dicts keep their values' order with ``str(key)`` keys; tuples and lists become lists;
-    * anything else (strings, ``None``, ...) is returned unchanged.
+    * strings and ``None`` are returned unchanged;
+    * anything else raises a TypeError naming where it is, e.g. ``['runs'][2]['solver']``.
 
     Example::
 
         json.dumps(to_jsonable({1: np.float64("nan"), "x": np.arange(2)}), allow_nan=False)
         # '{"1": null, "x": [0, 1]}'
     """
+    try:
+        return _plain(obj)
+    except _NotJSON as exc:
+        where = "".join(f"[{key!r}]" for key in reversed(exc.path)) or "the value"
+        raise TypeError(f"{where}: an object of type {type(exc.obj).__name__} cannot be written as JSON "
+                        f"(allowed: dicts, lists, tuples, numpy arrays, numbers, strings, booleans, "
+                        f"None)") from None
+
+
+class _NotJSON(Exception):
+    """An object :func:`to_jsonable` cannot convert; ``path`` collects its keys, innermost first."""
+
+    def __init__(self, obj: Any):
+        super().__init__()
+        self.obj, self.path = obj, []
+
+
+def _plain(obj: Any) -> Any:
     if isinstance(obj, dict):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
+        out = {}
+        for key, value in obj.items():
+            try:
+                out[str(key)] = _plain(value)
+            except _NotJSON as exc:
+                exc.path.append(key)
+                raise
+        return out
     if isinstance(obj, (list, tuple)):
-        return [to_jsonable(v) for v in obj]
+        items = []
+        for i, value in enumerate(obj):
+            try:
+                items.append(_plain(value))
+            except _NotJSON as exc:
+                exc.path.append(i)
+                raise
+        return items
     if isinstance(obj, np.ndarray):
-        return to_jsonable(obj.tolist())
+        return _plain(obj.tolist())
     if isinstance(obj, (bool, np.bool_)):
         return bool(obj)
     if isinstance(obj, (int, np.integer)):
@@ -112,4 +145,6 @@ def to_jsonable(obj: Any) -> Any:
     if isinstance(obj, (float, np.floating)):
         value = float(obj)
         return value if np.isfinite(value) else None
-    return obj
+    if obj is None or isinstance(obj, str):
+        return obj
+    raise _NotJSON(obj)

@@ -21,6 +21,9 @@ The one exception to "nothing left behind" is ``partial=True`` (time-dependent
 runs): the working directory is the fixed sibling ``<path>.partial``, which
 holds the checkpoints, survives failures and signals, is reused by a resumed
 run, and is promoted to ``<path>`` on success.
+
+:func:`write_json` is the project's JSON writer: strict JSON (NaN and ±inf
+as ``null``, never a bare ``NaN``), UTF-8, written atomically by rank 0.
 """
 
 from __future__ import annotations
@@ -37,8 +40,6 @@ import sys
 import tempfile
 import threading
 import typing
-
-import numpy as np
 
 from mpi4py import MPI
 
@@ -69,9 +70,8 @@ def _marker_info() -> dict:
 
 
 def _write_marker(directory: str) -> None:
-    with open(os.path.join(directory, MARKER), "w") as f:
-        json.dump(_marker_info(), f, indent=2)
-        f.write("\n")
+    with open(os.path.join(directory, MARKER), "w", encoding="utf-8") as f:
+        f.write(_json_text(_marker_info()))
 
 
 def is_gelcell_output(path: str) -> bool:
@@ -80,7 +80,7 @@ def is_gelcell_output(path: str) -> bool:
     if os.path.islink(marker) or not os.path.isfile(marker):
         return False
     try:
-        with open(marker) as f:
+        with open(marker, encoding="utf-8") as f:
             info = json.load(f)
     except (OSError, ValueError):
         return False
@@ -293,28 +293,33 @@ def atomic_path(path: str, comm: MPI.Comm = MPI.COMM_WORLD):
         yield tmp
 
 
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, (np.floating,)):
-        return float(obj)
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, (np.bool_,)):
-        return bool(obj)
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    return obj
+def _json_text(data: typing.Any) -> str:
+    """``data`` as strict JSON text (UTF-8 characters kept, indented, newline-terminated).
+
+    Converted by :func:`coupling.serialization.to_jsonable`: numpy scalars and
+    arrays become Python numbers and lists, NaN and ±inf ``null``; anything
+    else that is not JSON raises a TypeError naming its key path.
+    """
+    from coupling.serialization import to_jsonable     # the coupling package imports scipy: only when needed
+    return json.dumps(to_jsonable(data), indent=2, ensure_ascii=False, allow_nan=False) + "\n"
 
 
 def write_json(path: str, data: typing.Any, comm: MPI.Comm = MPI.COMM_WORLD) -> None:
-    """Write ``data`` as JSON (rank 0), atomically; numpy types are converted."""
+    """Write ``data`` to ``path`` as strict JSON (:func:`_json_text`), atomically, by rank 0 (collective).
+
+    Only rank 0's ``data`` is written.  A TypeError (``data`` holds something
+    that is not JSON) is raised on every rank, before any file is created.
+    """
+    text, error = None, None
+    if comm.rank == 0:
+        try:
+            text = _json_text(data)
+        except TypeError as exc:
+            error = f"{path}: {exc}"
+    error = comm.bcast(error, root=0)
+    if error is not None:
+        raise TypeError(error)
     with atomic_path(path, comm) as tmp:
         if comm.rank == 0:
-            with open(tmp, "w") as f:
-                json.dump(_jsonable(data), f, indent=2)
-                f.write("\n")
+            with open(tmp, "w", encoding="utf-8") as f:
+                f.write(text)

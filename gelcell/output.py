@@ -25,7 +25,7 @@ from dolfinx import fem
 import cell.forms as cell_forms
 import gel.forms as gel_forms
 from femtools.functions import NodalAverage, gather_rows, von_mises
-from femtools.io import _jsonable
+from coupling.serialization import to_jsonable as _jsonable
 from femtools.xdmf import NodalXDMF
 from gelcell.results import DeviceFields, gamma_profiles
 
