@@ -57,9 +57,10 @@ from coupling.acceleration import build_acceleration, relaxation_prior_diagonal
 from coupling.config import load_config
 from coupling.layout import VectorLayout
 from coupling.mapping import build_mapping, order_along_curve
-from gelcell.device import Device, coupling_config, default_relaxation_prior
-from gelcell.parameters import CaseParameters
-from gelcell.study import StudyCase
+from gelcell.coupled.defaults import coupling_config, default_relaxation_prior
+from gelcell.coupled.device import Device
+from gelcell.case import CaseParameters
+from gelcell.run.study import StudyCase
 
 IQN = {"type": "iqn-ils", "initial_relaxation": 0.5, "max_used_iterations": 100,
        "filter": {"type": "qr2", "limit": 1e-3}, "preconditioner": {"type": "value"}}
@@ -179,7 +180,7 @@ def condensed_rows(a, xs, layout, prior):
     groups = {"Gamma2": lambda name: name.startswith("Gamma2/")}
     groups["fluid-gel"] = lambda name: not name.startswith("Gamma2/")
     rows = {}
-    for label, (kept, gone) in {"Gamma2 condensed (the cell in the gel: the default split)": ("fluid-gel", "Gamma2"),
+    for label, (kept, _) in {"Gamma2 condensed (the cell in the gel: the default split)": ("fluid-gel", "Gamma2"),
                                 "fluid-gel condensed (the fluid in the gel)": ("Gamma2", "fluid-gel")}.items():
         names = [name for name in layout.names if groups[kept](name)]
         if len(names) == len(layout.names):

@@ -49,7 +49,7 @@ STIFFNESS_CASES = (("baseline", {}), ("cell x10", {"cell_moduli": 10.0}), ("gel 
 
 # -- one measurement, in a process of its own ----------------------------------------------------
 def _params(mesh_size: float, cell_moduli: float | None, gel_moduli: float | None):
-    from gelcell.parameters import CaseParameters
+    from gelcell.case import CaseParameters
     p = CaseParameters.default("shear").with_mesh_size(mesh_size)
     if cell_moduli is not None:
         p = p.with_cell_moduli(cell_moduli)
@@ -63,8 +63,8 @@ def _dofs(space) -> int:
 
 
 def measure_partitioned(p, comm, jacobian_prior: str = "default") -> dict:
-    from gelcell.device import Device
-    from gelcell.runner import partitioned_config
+    from gelcell.coupled.device import Device
+    from gelcell.coupled.defaults import partitioned_config
     chosen = {} if jacobian_prior == "default" else {"acceleration": {"jacobian_prior": jacobian_prior}}
     config = partitioned_config(p, coupling=chosen)
     t0 = time.perf_counter()
@@ -102,7 +102,7 @@ def steady_iteration(result) -> dict:
 
 
 def measure_monolithic(p, comm) -> dict:
-    from gelcell.runner import solve_monolithic
+    from gelcell.run.solve import solve_monolithic
     run = solve_monolithic(p, comm, checks=False)
     m = run.summary["monolithic"]
     return {"kind": "monolithic", "ranks": comm.size, "dofs": {"total": m["dofs"], "active": m["active_dofs"]},
@@ -195,9 +195,10 @@ def print_tables(sizes_rows: list[dict], iteration_rows: list[dict], ranks: int)
     print(f"\nShear baseline with a cell, serial IQN-ILS to 1e-10, {ranks} MPI rank(s); times in s, "
           f"memory in MiB (largest process)")
     print("\n| mesh size | dofs fluid / gel / cell | prior | iterations | process wall | setup | solves' total "
-          "| per iteration: fluid / gel / cell | ... without factorisations | iteration after the first: total (fluid / gel / cell) "
-          "| factorisations | peak "
-          "| monolithic dofs | monolithic Newton solve | monolithic wall | monolithic peak | solves' total / monolithic |")
+          "| per iteration: fluid / gel / cell | ... without factorisations "
+          "| iteration after the first: total (fluid / gel / cell) "
+          "| factorisations | peak | monolithic dofs | monolithic Newton solve | monolithic wall "
+          "| monolithic peak | solves' total / monolithic |")
     print("|---:|---|---|---:|---:|---:|---:|---|---|---|---:|---:|---:|---:|---:|---:|---:|")
     for r in sizes_rows:
         part, mono = r["partitioned"], r["monolithic"]
@@ -215,7 +216,8 @@ def print_tables(sizes_rows: list[dict], iteration_rows: list[dict], ranks: int)
         ratio = part["solves_total"] / mono["solve"] if mono_ok and mono["solve"] > 0 else None
         print(f"| {r['mesh_size']:g} | {d['fluid']} / {d['gel']} / {d.get('cell', 0)} | {_prior(part)} | {its} "
               f"| {part['wall']:.2f} "
-              f"| {part['setup']:.2f} | {part['solves_total']:.2f} | {per} | {marg} | {steady} | {sum(fac.values()):.2f} "
+              f"| {part['setup']:.2f} | {part['solves_total']:.2f} | {per} | {marg} | {steady} "
+              f"| {sum(fac.values()):.2f} "
               f"| {part['peak_mib']:.0f} "
               + (f"| {mono['dofs']['total']} | {mono['solve']:.2f} ({mono['newton_iterations']} Newton) "
                  f"| {mono['wall']:.2f} | {mono['peak_mib']:.0f} | {_f(ratio)} |" if mono_ok
@@ -266,7 +268,7 @@ def measure_fixed_costs(repeats: int, timeout: float) -> dict:
         timing = []
         for _ in range(repeats):
             walls["interpreter"].append(_wall([py, "-c", "pass"], timeout))
-            walls["imports"].append(_wall([py, "-c", "import gelcell.cli, gelcell.runner"], timeout))
+            walls["imports"].append(_wall([py, "-c", "import gelcell.cli, gelcell.run.steady"], timeout))
             walls["run_no_figures"].append(_wall(run + ["--no-figures"], timeout))
             with open(os.path.join(out, "summary.json")) as fh:     # the phases of the run they add up to
                 timing.append(json.load(fh)["timing"])
@@ -312,7 +314,8 @@ def main(argv=None) -> int:
     for size in args.sizes:
         part = run_child("partitioned", size, args.ranks, args.timeout)
         if part.get("prior_source") == "computed":            # the warm run; the first one's cost kept
-            part = {**run_child("partitioned", size, args.ranks, args.timeout), "cold_solves_total": part["solves_total"]}
+            cold = part["solves_total"]
+            part = {**run_child("partitioned", size, args.ranks, args.timeout), "cold_solves_total": cold}
         row = {"mesh_size": size, "partitioned": part}
         need = _predicted_monolithic_mib(sizes_rows, row)
         if args.no_monolithic:

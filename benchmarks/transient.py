@@ -18,10 +18,9 @@ import time
 
 from mpi4py import MPI
 
-from gelcell.parameters import CaseParameters
-from gelcell.runner import solve_partitioned
-from gelcell.timesettings import TimeSettings
-from gelcell.transient import run_transient_case
+from gelcell.case import CaseParameters, RunConfig, SolverSettings, TimeSettings
+from gelcell.run.solve import solve_partitioned
+from gelcell.run.transient_case import run_transient_case
 
 
 def main() -> None:
@@ -49,11 +48,14 @@ def main() -> None:
         runs.append(("monolithic, fixed dt", True, TimeSettings(transient=True, scheme=args.scheme)))
     for label, monolithic, settings in runs:
         t0 = time.perf_counter()
-        summary = run_transient_case(params, settings, None, monolithic=monolithic, comm=comm, stream=quiet)
+        config = RunConfig(params, solver=SolverSettings(method="monolithic" if monolithic else "partitioned"),
+                           time=settings)
+        summary = run_transient_case(config, None, comm=comm, stream=quiet)
         tr = summary["transient"]
         rows[label] = {"wall_time": time.perf_counter() - t0, "windows": tr["windows"],
                        "windows_to_t99": tr["windows_to_t99"], "rejected": tr["rejected_windows"],
-                       "iterations_mean": tr["iterations_mean"], "iterations_mean_after_5": tr["iterations_mean_after_5"],
+                       "iterations_mean": tr["iterations_mean"],
+                       "iterations_mean_after_5": tr["iterations_mean_after_5"],
                        "t50": tr["t50"], "t90": tr["t90"], "t99": tr["t99"], "t99_s": tr["t99_s"],
                        "relaxation_time": tr["relaxation_time"], "t_end": tr["t_end"],
                        "centroid_x": summary["cell.centroid_displacement"][0] if params.with_cell else None}

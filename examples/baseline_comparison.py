@@ -15,10 +15,10 @@ import json
 
 from mpi4py import MPI
 
-from gelcell.parameters import CaseParameters
-from gelcell.runner import solve_monolithic, solve_partitioned
-from gelcell.results import flat_quantities
-from gelcell.study import quantity_error
+from gelcell.case import CaseParameters
+from gelcell.run.solve import solve_monolithic, solve_partitioned
+from gelcell.post.quantities import flat_quantities
+from gelcell.run.study import quantity_error
 
 
 def main(argv=None):
@@ -33,7 +33,8 @@ def main(argv=None):
         p = CaseParameters.default(case, True).with_mesh_size(args.mesh_size)
         runs = {"monolithic": solve_monolithic(p, comm).summary}
         for scheme, acc in (("serial", "iqn-ils"), ("serial", "aitken"), ("parallel", "iqn-ils")):
-            runs[f"{scheme} {acc}"] = solve_partitioned(p, scheme, acc, comm=comm, verbose=False).summary
+            coupling = {"scheme": f"{scheme}-implicit", "acceleration": {"type": acc}}
+            runs[f"{scheme} {acc}"] = solve_partitioned(p, coupling, comm=comm, verbose=False).summary
         out[case] = {k: {"quantities": flat_quantities(v), "timing": v["timing"], "mesh": v["mesh"],
                          "iterations": (v["coupling"] or {}).get("iterations"),
                          "monolithic": v.get("monolithic"),

@@ -18,7 +18,7 @@ import numpy as np
 
 from mpi4py import MPI
 
-from gelcell.layer import FLOWS, LayerCase, LayerDevice
+from gelcell.coupled.layer import FLOWS, LayerCase, LayerDevice
 
 CASES = {**{f: (lambda f=f: LayerCase(f)) for f in FLOWS},
          **{f"{f}-table1": (lambda f=f: LayerCase.table1(f)) for f in FLOWS}}

@@ -18,8 +18,8 @@ import numpy as np
 
 from mpi4py import MPI
 
-from gelcell.parameters import CaseParameters
-from gelcell.runner import solve_partitioned
+from gelcell.case import CaseParameters
+from gelcell.run.solve import solve_partitioned
 
 QUANTITIES = {"max |v_f|": ("gel", "max_interstitial_speed", None),
               "cell max von Mises strain": ("cell", "von_mises_strain", 1),

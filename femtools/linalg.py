@@ -53,7 +53,7 @@ MUMPS_ORDERINGS = {0: "AMD", 2: "AMF", 4: "PORD", 6: "QAMD", 7: "automatic"}
 #: stage) but its elimination trees back-substitute more slowly, which a
 #: time-dependent run, with many back-substitutions per factorisation, pays for
 #: (docs/femtools-costs.md).  Steady device runs, which factorise once and
-#: back-substitute a few times, ask for AMF (gelcell.device.STEADY_SOLVER_OPTIONS).
+#: back-substitute a few times, ask for AMF (gelcell.coupled.defaults.STEADY_SOLVER_OPTIONS).
 DEFAULT_ORDERING = 7
 
 

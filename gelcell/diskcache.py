@@ -1,4 +1,4 @@
-"""What the per-machine disk caches (:mod:`gelcell.meshcache`, :mod:`gelcell.priorcache`) share.
+"""What the per-machine disk caches (:mod:`gelcell.geometry.meshcache`, :mod:`gelcell.coupled.priorcache`) share.
 
 Entries are ``.npz`` files written atomically (a temporary file, then a
 rename), so a concurrent reader sees the old entry or the whole new one;
@@ -9,8 +9,6 @@ cache never fails a run: a directory that cannot be written is skipped.
 from __future__ import annotations
 
 import contextlib
-import hashlib
-import importlib.util
 import logging
 import os
 import re
@@ -19,7 +17,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-__all__ = ["cache_root", "enabled", "prune", "read_npz", "source_hash", "write_npz"]
+__all__ = ["cache_root", "enabled", "prune", "read_npz", "write_npz"]
 
 _log = logging.getLogger(__name__)
 
@@ -33,12 +31,6 @@ def cache_root() -> str:
 def enabled(variable: str) -> bool:
     """False if the environment variable ``variable`` is ``0`` (the cache is off)."""
     return os.environ.get(variable, "1").strip() != "0"
-
-
-def source_hash(module: str) -> str:
-    """sha256 of a module's source file, found without importing it."""
-    with open(importlib.util.find_spec(module).origin, "rb") as f:
-        return hashlib.sha256(f.read()).hexdigest()
 
 
 def read_npz(path: str, parse: Callable[[Any], Any]) -> Any:

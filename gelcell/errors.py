@@ -35,7 +35,6 @@ import typing
 
 from coupling.errors import CouplingDivergedError, CouplingNotConvergedError
 from femtools.errors import NewtonError, OutputError, SingularSystemError
-from gelcell.parameters import ParameterError
 
 __all__ = ["GelcellError", "ModelLimitError", "SweepError", "Interrupted", "EXIT_CODES", "exit_code",
            "message", "root_cause", "install_signal_handlers", "OutputError", "SingularSystemError",
@@ -44,6 +43,10 @@ __all__ = ["GelcellError", "ModelLimitError", "SweepError", "Interrupted", "EXIT
 
 class GelcellError(Exception):
     """Base class of gelcell's own expected failures."""
+
+
+class ParameterError(ValueError):
+    """A parameter outside its physical range (or an unknown/ill-typed input)."""
 
 
 class ModelLimitError(GelcellError):
@@ -171,3 +174,4 @@ def install_signal_handlers(signals: typing.Iterable[int] = (signal.SIGINT, sign
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler if handler is not None else signal.SIG_DFL)
+

@@ -42,7 +42,8 @@ def run_mpi(script: str, nprocs: int = 2, args: list[str] | None = None, timeout
         cmd = ["mpirun", "-n", str(nprocs)] + cmd
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=timeout)
     if proc.returncode != 0:
-        raise AssertionError(f"{' '.join(cmd)} failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
+        raise AssertionError(f"{' '.join(cmd)} failed ({proc.returncode}):\n"
+                             f"{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
     lines = [ln for ln in proc.stdout.splitlines() if ln.strip()]
     if not lines:
         raise AssertionError(f"{' '.join(cmd)} printed nothing; stderr:\n{proc.stderr[-3000:]}")

@@ -15,7 +15,7 @@ import textwrap
 __all__ = ["paused_gelcell", "signal_when_paused"]
 
 
-def paused_gelcell(args: list[str], target: str = "gelcell.device.GelParticipant.solve",
+def paused_gelcell(args: list[str], target: str = "gelcell.coupled.participants.GelParticipant.solve",
                    call: int = 2) -> subprocess.Popen:
     """``gelcell *args`` whose ``call``-th call of ``target`` (module.Class.method) waits for a signal."""
     module, cls, method = target.rsplit(".", 2)

@@ -1,7 +1,7 @@
 """Coupled closed forms through the partitioned device machinery (issue 12, item 5).
 
 The channel-over-gel-layer device (``gelcell/layer.py``) runs the real
-StokesSolver and PoroelasticGelSolver through gelcell.device's
+StokesSolver and PoroelasticGelSolver through gelcell.coupled.participants'
 FluidParticipant, GelParticipant, coupling_data and coupling_config, coupled
 by coupling.build_scheme.  Its fully developed solutions are compared with
 closed forms derived from model.md's own equations and interface
@@ -31,7 +31,7 @@ import numpy as np
 import pytest
 import sympy as sp
 
-from gelcell.layer import FLOWS, LayerCase, LayerClosedForm, LayerDevice
+from gelcell.coupled.layer import FLOWS, LayerCase, LayerClosedForm, LayerDevice
 
 MESHES = (8, 16, 32)          # cells across the gel: h = delta/2, delta/4, delta/8 (H_g = 4 delta)
 
@@ -88,7 +88,9 @@ def _model_equations(cf: LayerClosedForm) -> dict[str, tuple]:
     Sigma = _grad(V, X) + _grad(V, X).T
     sigma_f = _grad(vf, X) + _grad(vf, X).T
     sigma_s = _grad(u, X) + _grad(u, X).T + lam * _grad(u, X).trace() * I
-    grad = lambda f: sp.Matrix([sp.diff(f, x), sp.diff(f, y)])
+
+    def grad(f):
+        return sp.Matrix([sp.diff(f, x), sp.diff(f, y)])
     n, t = sp.Matrix([0, 1]), sp.Matrix([1, 0])
     fluid_pts = [{x: 0.3 * k, y: s * c.H_f} for k in (0, 1) for s in (0.1, 0.5, 0.9)]
     gel_pts = [{x: 0.3 * k, y: -s * c.H_g} for k in (0, 1) for s in (0.1, 0.5, 0.9)]
@@ -135,7 +137,10 @@ def test_closed_form_solves_the_model_equations(flow, table1):
 
 
 def _u_i_3b(G, G_p, mu, mu_e, zeta, H_p, H_f, beta_J=0.0):
-    """verification.md 3b: u_i = [G H_f/2 + (mu_e Q_D/delta) tanh(X/2)] / [mu_e coth X/delta + mu/H_f - beta_J mu/sqrt(k)]."""
+    """verification.md 3b: the interface slip u_i.
+
+    u_i = [G H_f/2 + (mu_e Q_D/delta) tanh(X/2)] / [mu_e coth X/delta + mu/H_f - beta_J mu/sqrt(k)].
+    """
     delta, Q_D, k = math.sqrt(mu_e / zeta), G_p / zeta, mu / zeta
     X = H_p / delta
     return ((G * H_f / 2 + mu_e * Q_D / delta * math.tanh(X / 2))
@@ -202,7 +207,9 @@ def test_tangential_closed_form_limits(case):
 
 
 def test_compression_closed_form_against_6a():
-    """verification.md section 6 intro and 6a in the model's units (kappa = phi_f/(xi phi_s), M_d = phi_s (2 + lambda_s)).
+    """verification.md section 6 intro and 6a in the model's units.
+
+    kappa = phi_f/(xi phi_s), M_d = phi_s (2 + lambda_s).
 
     With eta finite: Delta p_i = q phi_s^2/(eta phi_f^2), sigma_s,zz(0) =
     -q phi_s/(eta phi_f^2), u_z(0) = -(L/M_d)(Delta p_gel/2 + Delta p_i).

@@ -14,10 +14,12 @@ from petsc4py import PETSc
 
 from mpi_run import run_mpi
 
-from gelcell.checks import interface_residuals
-from gelcell.parameters import CaseParameters
-from gelcell.results import flat_quantities, relative_differences
-from gelcell.runner import report, solve_monolithic, solve_partitioned
+from gelcell.post.residuals import interface_residuals
+from gelcell.case import CaseParameters
+from gelcell.post.fields import relative_differences
+from gelcell.post.quantities import flat_quantities
+from gelcell.output.summary import report
+from gelcell.run.solve import solve_monolithic, solve_partitioned
 
 MESH = 3.0   # test-sized: every element size x3 (16 edges around the cell)
 
@@ -34,9 +36,9 @@ def runs(request):
     case = request.param
     p = _params(case)
     mono = solve_monolithic(p, checks=False)
-    part = {acc: solve_partitioned(p, "serial", acc, verbose=False, checks=False)
+    part = {acc: solve_partitioned(p, {"acceleration": {"type": acc}}, verbose=False, checks=False)
             for acc in ("iqn-ils", "aitken")}
-    part["parallel iqn-ils"] = solve_partitioned(p, "parallel", "iqn-ils", verbose=False, checks=False)
+    part["parallel iqn-ils"] = solve_partitioned(p, {"scheme": "parallel-implicit"}, verbose=False, checks=False)
     return case, mono, part
 
 
@@ -69,9 +71,9 @@ def _direct_solvers(device) -> dict:
 
 
 def test_steady_runs_factorise_with_the_amf_ordering(runs):
-    """A steady device gives its field solvers MUMPS's AMF ordering (gelcell.device.STEADY_SOLVER_OPTIONS),
+    """A steady device gives its field solvers MUMPS's AMF ordering (gelcell.coupled.defaults.STEADY_SOLVER_OPTIONS),
     and MUMPS's analysis used it (INFOG(7)) for every factorisation the run made."""
-    from gelcell.device import STEADY_SOLVER_OPTIONS
+    from gelcell.coupled.defaults import STEADY_SOLVER_OPTIONS
     _, _, part = runs
     device = part["iqn-ils"].solver
     factorised = []
@@ -89,7 +91,7 @@ def test_steady_runs_factorise_with_the_amf_ordering(runs):
 def test_time_dependent_devices_keep_mumps_automatic_ordering():
     """~1000 back-substitutions per factorisation: the automatic choice's trees solve faster (README)."""
     from femtools.linalg import DEFAULT_ORDERING
-    from gelcell.device import Device
+    from gelcell.coupled.device import Device
     device = Device(_params("shear"), transient=True)
     for name, solver in _direct_solvers(device).items():
         assert solver.ordering == DEFAULT_ORDERING == 7, name
@@ -171,8 +173,9 @@ def test_each_participant_alone_reproduces_its_part(case):
     the coupled solution (to the coupling tolerance), which shows that every
     field problem of the split is well posed on its own (docs/partitioning.md).
     """
-    from gelcell.device import Device, coupling_config
-    from gelcell.results import fields_from_device
+    from gelcell.coupled.defaults import coupling_config
+    from gelcell.coupled.device import Device
+    from gelcell.post.fields import fields_from_device
 
     p = _params(case)
     coupled = Device(p)
@@ -195,7 +198,7 @@ def test_other_gamma2_splits_reach_the_same_solution(case, gamma2):
     """Robin-Neumann and plain Dirichlet-Neumann on Gamma2 (the default condenses the cell's
     stiffness into the gel) are other iterations for the same discrete problem."""
     p = _params(case)
-    part = solve_partitioned(p, "serial", "iqn-ils", verbose=False, checks=False, gamma2=gamma2)
+    part = solve_partitioned(p, verbose=False, checks=False, gamma2=gamma2)
     mono = solve_monolithic(p, checks=False)
     assert part.summary["coupling"]["converged"] and part.summary["coupling"]["gamma2"] == gamma2
     diffs = relative_differences(part.fields, mono.fields)

@@ -26,9 +26,11 @@ import pytest
 
 from femtools.interface import InterfaceNodes
 from gelcell.geometry import Tag
-from gelcell.parameters import CaseParameters, ParameterError
-from gelcell.results import flat_quantities, relative_differences
-from gelcell.runner import solve_monolithic, solve_partitioned
+from gelcell.case import CaseParameters
+from gelcell.errors import ParameterError
+from gelcell.post.fields import relative_differences
+from gelcell.post.quantities import flat_quantities
+from gelcell.run.solve import solve_monolithic, solve_partitioned
 from test_transient import relative_difference
 from transient_cases import run, tau
 
@@ -81,7 +83,7 @@ def test_large_strain_partitioned_equals_monolithic(large):
 
 
 def test_large_strain_interface_conditions(large):
-    """On the current interface (I13 with I16, I14, I15 with I17: gelcell.checks) to solver tolerance."""
+    """On the current interface (I13 with I16, I14, I15 with I17: gelcell.post.residuals) to solver tolerance."""
     case, mono, part = large
     for name, run_ in (("monolithic", mono), ("partitioned", part)):
         residuals = run_.summary["interface_residuals"]

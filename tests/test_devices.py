@@ -23,9 +23,10 @@ import numpy as np
 import pytest
 
 from mpi_run import run_mpi
-from gelcell.parameters import CaseParameters, ParameterError
-from gelcell.results import flat_quantities
-from gelcell.runner import solve_monolithic, solve_partitioned
+from gelcell.case import CaseParameters
+from gelcell.errors import ParameterError
+from gelcell.post.quantities import flat_quantities
+from gelcell.run.solve import solve_monolithic, solve_partitioned
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 SIZE = 3.0
@@ -61,7 +62,7 @@ def _change(a: dict, b: dict, key: str) -> float:
 
 
 def test_geometry_file_with_the_builtin_mesh_gives_the_builtin_results(shared_tmp_path, comm):
-    from gelcell.geometryfile import export_builtin
+    from gelcell.geometry.files.build import export_builtin
     builtin = _shear()
     path = str(shared_tmp_path / "shear.msh")
     if comm.rank == 0:

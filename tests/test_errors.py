@@ -20,7 +20,7 @@ from coupling.errors import CouplingDivergedError, CouplingNotConvergedError
 from femtools.errors import NewtonError, OutputError, SingularSystemError
 from gelcell.errors import (EXIT_CODES, Interrupted, ModelLimitError, SweepError, exit_code, message,
                             root_cause)
-from gelcell.parameters import ParameterError
+from gelcell.errors import ParameterError
 
 serial_cli = pytest.mark.skip_in_parallel
 

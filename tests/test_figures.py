@@ -1,4 +1,8 @@
-"""The figures: the PNG writer (one rendering, cropped to what is drawn plus the margin) and the worker process that draws a serial run's figures (steady and time-dependent)."""
+"""The figures: the PNG writer and the worker process that draws a run's figures.
+
+The writer renders once, cropped to what is drawn plus the margin; the worker
+draws a serial run's figures (steady and time-dependent).
+"""
 
 import io
 import os
@@ -13,7 +17,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from PIL import Image  # noqa: E402
 
-from gelcell.figures import _DPI, _PAD_INCHES, write_png  # noqa: E402
+from gelcell.output.drawing import _DPI, _PAD_INCHES, write_png  # noqa: E402
 
 
 def test_write_png_crops_to_the_drawing_plus_the_margin(tmp_path):
@@ -47,11 +51,12 @@ def _pixels(directory):
 
 
 def _run(out, monkeypatch, worker: str):
-    from gelcell.parameters import CaseParameters
-    from gelcell.runner import run_case
+    from gelcell.case import CaseParameters, OutputSettings, RunConfig
+    from gelcell.run.steady import run_case
     monkeypatch.setenv("GELCELL_FIGURE_WORKER", worker)
     params = CaseParameters.default("shear").with_mesh_size(3)
-    return run_case(params, str(out), verbose=False, stream=io.StringIO(), fields=False)
+    return run_case(RunConfig(params, output=OutputSettings(progress=False)), str(out), stream=io.StringIO(),
+                    fields=False)
 
 
 @pytest.mark.skip_in_parallel
@@ -66,14 +71,14 @@ def test_worker_draws_the_same_figures_as_the_run_itself(tmp_path, monkeypatch):
 
 @pytest.mark.skip_in_parallel
 def test_a_failed_worker_leaves_the_figures_to_the_run(tmp_path, monkeypatch, capfd):
-    import gelcell.plots as plots
+    import gelcell.output.figures as plots
 
     class BrokenWorker(plots.FigureWorker):
         def __init__(self):
             self.proc = subprocess.Popen([sys.executable, "-c", "import sys; sys.stderr.write('boom'); sys.exit(3)"],
                                          stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
 
-    monkeypatch.setattr("gelcell.plots.FigureWorker", BrokenWorker)
+    monkeypatch.setattr("gelcell.output.figures.FigureWorker", BrokenWorker)
     summary = _run(tmp_path / "run", monkeypatch, "1")
     assert "figure worker failed (exit 3): boom" in capfd.readouterr().err
     pngs = [f for f in summary["files"] if f.endswith(".png")]
@@ -81,7 +86,7 @@ def test_a_failed_worker_leaves_the_figures_to_the_run(tmp_path, monkeypatch, ca
 
 
 def test_the_worker_side_needs_neither_dolfinx_nor_mpi():
-    code = ("import sys, gelcell.figures; "
+    code = ("import sys, gelcell.output.drawing; "
             "print([m for m in ('dolfinx', 'mpi4py', 'petsc4py', 'ufl') if m in sys.modules])")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
     assert out.stdout.strip() == "[]", out
@@ -89,7 +94,7 @@ def test_the_worker_side_needs_neither_dolfinx_nor_mpi():
 
 @pytest.mark.skip_in_parallel
 def test_closing_a_worker_stops_it():
-    from gelcell.plots import FigureWorker
+    from gelcell.output.figures import FigureWorker
     worker = FigureWorker()           # waits for data that never comes
     assert os.getpgid(worker.proc.pid) == worker.proc.pid    # its group: close() stops what it forked
     worker.close()
@@ -98,7 +103,7 @@ def test_closing_a_worker_stops_it():
 
 @pytest.mark.skip_in_parallel
 def test_figures_carry_the_device_name_titles_and_units(tmp_path, monkeypatch):
-    import gelcell.figures
+    import gelcell.output.drawing
     texts = {}
 
     def record(fig, path):
@@ -108,7 +113,7 @@ def test_figures_carry_the_device_name_titles_and_units(tmp_path, monkeypatch):
             "ylabels": [ax.get_ylabel() for ax in fig.axes]}
         open(path, "wb").close()
 
-    monkeypatch.setattr(gelcell.figures, "write_png", record)
+    monkeypatch.setattr(gelcell.output.drawing, "write_png", record)
     _run(tmp_path / "run", monkeypatch, "0")        # drawn in this process, so the recorder sees them
     profiles = texts["gamma1_profiles.png"]
     assert profiles["suptitle"] == "shear flow: profiles along Γ1", profiles
@@ -143,7 +148,7 @@ def _render(fig):
 
 def test_gouraud_draws_the_pixels_of_tripcolor():
     import matplotlib.tri as mtri
-    from gelcell.figures import gouraud
+    from gelcell.output.drawing import gouraud
     rng = np.random.default_rng(3)
     x, y = rng.uniform(-1, 2, 200), rng.uniform(0, 0.5, 200)
     tri = mtri.Triangulation(x, y)
@@ -168,7 +173,7 @@ def _fails():
 @pytest.mark.skip_in_parallel          # forks: never from an MPI process
 def test_run_tasks_keeps_the_order_of_the_tasks_whatever_their_costs():
     import functools
-    from gelcell.figures import run_tasks
+    from gelcell.output.drawing import run_tasks
     tasks = [functools.partial(_square, i) for i in range(7)]
     costs = [0.1, 0.9, 0.3, 0.3, 0.8, 0.0, 0.5]
     assert run_tasks(tasks, costs, processes=2) == [i * i for i in range(7)]
@@ -179,12 +184,12 @@ def test_run_tasks_keeps_the_order_of_the_tasks_whatever_their_costs():
 
 def _run_transient(out, monkeypatch, worker: str):
     from transient_cases import case, tau
-    from gelcell.timesettings import TimeSettings
-    from gelcell.transient import run_transient_case
+    from gelcell.case import RunConfig, TimeSettings
+    from gelcell.run.transient_case import run_transient_case
     monkeypatch.setenv("GELCELL_FIGURE_WORKER", worker)
     params = case("shear")
     settings = TimeSettings(transient=True, dt=tau(params) / 40, t_end=2 * tau(params) / 40)
-    return run_transient_case(params, settings, str(out), fields=False, stream=io.StringIO())
+    return run_transient_case(RunConfig(params, time=settings), str(out), fields=False, stream=io.StringIO())
 
 
 @pytest.mark.skip_in_parallel

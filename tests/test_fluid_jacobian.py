@@ -180,8 +180,8 @@ def test_dirichlet_parts_are_not_linearised():
 @pytest.mark.parametrize("kinematics", ["finite", "small"])
 def test_normal_flow_device(kinematics):
     """The device's fluid: upstream part enclosed by the inflow, symmetry lines and Gamma1."""
-    from gelcell.device import Device
-    from gelcell.parameters import CaseParameters
+    from gelcell.coupled.device import Device
+    from gelcell.case import CaseParameters
     params = CaseParameters.default("normal").with_mesh_size(3.0).with_kinematics(kinematics)
     device = Device(params)
     fluid = device.fluid

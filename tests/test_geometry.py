@@ -31,8 +31,10 @@ from mpi4py import MPI
 import ufl
 from dolfinx import fem, io, mesh as dmesh
 
-from gelcell.geometry import INTERFACES, REGIONS, Tag, build_device, closed_form_measures
-from gelcell.parameters import CaseParameters
+from gelcell.geometry import INTERFACES, REGIONS, Tag
+from gelcell.geometry.builtin import closed_form_measures
+from gelcell.geometry.meshes import build_meshes
+from gelcell.case import CaseParameters
 
 REL_TOL = 2e-6
 
@@ -138,7 +140,7 @@ def _whole_checks(msh, ct, ft) -> dict:
 
 def measure(params: CaseParameters) -> dict:
     """Everything the tests compare, reduced over all ranks (identical on every rank)."""
-    dev = build_device(params, MPI.COMM_WORLD)
+    dev = build_meshes(params, MPI.COMM_WORLD)
     out = {"counts": dev.counts(), "interfaces": dev.interfaces, "regions": {}, "nodes_equal": {}}
     for name in dev.regions:
         out["regions"][name] = _region_checks(*dev.region(name))
@@ -223,27 +225,27 @@ def test_cell_resolution(measured):
 def test_mesh_size_factor():
     """size_factor 2 halves the number of edges on every tagged boundary (to ±1 edge)."""
     p = CaseParameters.default("normal")
-    fine = build_device(p, regions=["cell"], whole=False).counts()["cell"]["facets"]
-    coarse = build_device(p.with_mesh_size(2.0), regions=["cell"], whole=False).counts()["cell"]["facets"]
+    fine = build_meshes(p, regions=["cell"], whole=False).counts()["cell"]["facets"]
+    coarse = build_meshes(p.with_mesh_size(2.0), regions=["cell"], whole=False).counts()["cell"]["facets"]
     for tag, n in fine.items():
         assert abs(coarse[tag] - n / 2) <= 1, (tag, n, coarse[tag])
 
 
 @pytest.mark.mpi
 def test_region_selection_and_missing_cell():
-    dev = build_device(CaseParameters.default("shear", with_cell=False), regions=["gel"], whole=False)
+    dev = build_meshes(CaseParameters.default("shear", with_cell=False), regions=["gel"], whole=False)
     assert dev.regions == ["gel"] and dev.whole is None
     with pytest.raises(KeyError):
         dev.region("cell")
     with pytest.raises(KeyError):
-        build_device(CaseParameters.default("shear", with_cell=False), regions=["cell"])
+        build_meshes(CaseParameters.default("shear", with_cell=False), regions=["cell"])
 
 
 @pytest.mark.mpi
 def test_xdmf_roundtrip(tmp_path_factory):
     """write_xdmf files read back with the same number of cells and tags."""
     directory = MPI.COMM_WORLD.bcast(str(tmp_path_factory.mktemp("xdmf")), root=0)
-    dev = build_device(CaseParameters.default("normal"))
+    dev = build_meshes(CaseParameters.default("normal"))
     counts = dev.counts()
     paths = dev.write_xdmf(directory)
     assert sorted(os.path.basename(p) for p in paths) == ["cell.xdmf", "fluid.xdmf", "gel.xdmf",

@@ -110,11 +110,12 @@ def test_broken_file_is_refused_before_meshing(shared_tmp_path, cli_stderr, edit
 
 def test_valid_file_reads_its_convention():
     """The unbroken file: its groups become gelcell's conditions, its cell a CellSpec."""
-    from gelcell.boundaries import SegmentInflow
-    from gelcell.parameters import CaseParameters
+    from gelcell.geometry.layout import SegmentInflow
+    from gelcell.case import CaseParameters
     p = CaseParameters.from_dict({"geometry": {"file": os.path.join(HERE, "geometry_files", "small.geo")}})
     assert p.case == "file" and p.with_cell
-    layout = p.geometry.layout.layout
+    from gelcell.geometry.describe import device_layout
+    layout = device_layout(p)
     (cell,) = layout.cells
     assert cell.name == "cell" and cell.interface == "Gamma2"
     assert cell.centre == pytest.approx((1.0, -0.3), abs=1e-12) and cell.diameter == pytest.approx(0.1, rel=1e-12)
@@ -139,7 +140,8 @@ def test_cells_of_a_builtin_device_are_checked_before_meshing(cli_stderr, shared
 
 @pytest.mark.skip_in_parallel
 def test_case_file_names_the_geometry_relative_to_itself(tmp_path):
-    from gelcell.parameters import CaseParameters, ParameterError
+    from gelcell.case import CaseParameters
+    from gelcell.errors import ParameterError
     (tmp_path / "dev").mkdir()
     (tmp_path / "dev" / "chip.geo").write_text(SMALL)
     (tmp_path / "case.toml").write_text('[geometry]\nfile = "dev/chip.geo"\n[physics]\nca = 1e-9\n')

@@ -2,10 +2,10 @@
 
 * The cell's stiffness condensed into the gel on Gamma2 (the default split, ``gamma2="schur"``)
   and Dirichlet-Neumann with the Gamma2 relaxation prior
-  (gelcell.device.default_relaxation_prior) on the stiff cell of both devices: partitioned =
+  (gelcell.coupled.defaults.default_relaxation_prior) on the stiff cell of both devices: partitioned =
   monolithic to 1e-6, and the condensed split takes as many iterations as at baseline.
 * A Ca sweep reuses the previous values' interface data and quasi-Newton
-  columns (gelcell.runner.ReuseStore): the third value converges in a few
+  columns (gelcell.coupled.reuse.ReuseStore): the third value converges in a few
   iterations (a property of the method: the extrapolated prediction is
   exact to the strain-sized nonlinearity and the kept columns span the
   interface operator), and its result equals the monolithic one.
@@ -15,10 +15,13 @@ from __future__ import annotations
 
 import pytest
 
-from gelcell.device import default_relaxation_prior, gamma2_stiffness_ratio, reuse_key
-from gelcell.parameters import CaseParameters
-from gelcell.results import flat_quantities, relative_differences
-from gelcell.runner import ReuseStore, partitioned_config, solve_monolithic, solve_partitioned
+from gelcell.coupled.defaults import default_relaxation_prior, gamma2_stiffness_ratio, reuse_key
+from gelcell.case import CaseParameters
+from gelcell.post.fields import relative_differences
+from gelcell.post.quantities import flat_quantities
+from gelcell.coupled.defaults import partitioned_config
+from gelcell.coupled.reuse import ReuseStore
+from gelcell.run.solve import solve_monolithic, solve_partitioned
 
 MESH = 3.0
 
@@ -145,7 +148,7 @@ def test_linearized_prior_is_reused_across_a_ca_sweep():
     runs = [solve_partitioned(base.with_ca(ca), verbose=False, checks=False, reuse=store, coupling=coupling)
             for ca in (3e-10, 1e-9, 3e-9)]
     priors = [r.solver.linearized_prior for r in runs]
-    # the first value computes it (or loads it from the prior cache, gelcell.priorcache), the others reuse it
+    # the first value computes it (or loads it from the prior cache, gelcell.coupled.priorcache), the others reuse it
     assert [r.summary["coupling"]["prior_source"] for r in runs[1:]] == ["reused", "reused"]
     assert runs[0].summary["coupling"]["prior_source"] in ("computed", "disk cache")
     assert priors[1].setup_time == 0 and priors[2].setup_time == 0

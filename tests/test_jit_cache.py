@@ -21,8 +21,8 @@ from mpi4py import MPI
 
 import ffcx.codegeneration.jit as ffcx_jit
 
-from gelcell.parameters import CaseParameters
-from gelcell.runner import run_case
+from gelcell.case import CaseParameters, OutputSettings, RunConfig, SolverSettings
+from gelcell.run.steady import run_case
 
 COMM = MPI.COMM_WORLD
 
@@ -41,9 +41,10 @@ def compilations(monkeypatch):
     return names
 
 
-def _run(params, out, **kwargs):
+def _run(params, out, monolithic=False):
     with open(os.devnull, "w") as quiet:
-        run_case(params, out, verbose=False, stream=quiet, figures=False, **kwargs)
+        run_case(RunConfig(params, solver=SolverSettings(method="monolithic" if monolithic else "partitioned"),
+                           output=OutputSettings(figures=False, progress=False)), out, stream=quiet)
 
 
 @pytest.mark.parametrize("monolithic", [False, True], ids=["partitioned", "monolithic"])

@@ -1,4 +1,4 @@
-"""The mesh cache of the built-in devices (``gelcell.meshcache``): a hit gives the same meshes without gmsh.
+"""The mesh cache of the built-in devices (``gelcell.geometry.meshcache``): a hit gives the same meshes without gmsh.
 
 Every test points ``GELCELL_CACHE_DIR`` at a temporary directory, so none depends on
 the user's cache.  Runs under ``pytest`` and under ``mpirun -n 2 python -m pytest``:
@@ -20,10 +20,10 @@ import pytest
 
 from mpi4py import MPI
 
-import gelcell.geometry
-from gelcell import meshcache
-from gelcell.geometry import build_device
-from gelcell.parameters import CaseParameters, FileGeometry, ParameterError
+from gelcell.geometry import meshcache, meshes
+from gelcell.geometry.meshes import build_meshes
+from gelcell.case import CaseParameters, FileGeometry
+from gelcell.errors import ParameterError
 
 COMM = MPI.COMM_WORLD
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -44,12 +44,12 @@ def cache(empty_cache):
 def meshings(monkeypatch):
     """Counts the devices meshed with gmsh (rank 0; always 0 on the other ranks)."""
     calls = []
-    original = gelcell.geometry._mesh_with_gmsh
+    original = meshes._mesh_with_gmsh
 
     def counted(params):
         calls.append(params)
         return original(params)
-    monkeypatch.setattr(gelcell.geometry, "_mesh_with_gmsh", counted)
+    monkeypatch.setattr(meshes, "_mesh_with_gmsh", counted)
     return calls
 
 
@@ -57,7 +57,7 @@ def no_meshing(monkeypatch):
     """From now on, meshing with gmsh fails the test (a hit must not mesh)."""
     def fail(params):
         raise AssertionError("meshed with gmsh on a cache hit")
-    monkeypatch.setattr(gelcell.geometry, "_mesh_with_gmsh", fail)
+    monkeypatch.setattr(meshes, "_mesh_with_gmsh", fail)
 
 
 def entries(path) -> list[str]:
@@ -92,14 +92,14 @@ def meshed(calls) -> int:
 @pytest.mark.parametrize("case", ["shear", "normal"])
 def test_a_hit_gives_the_same_meshes_without_gmsh(cache, monkeypatch, case):
     params = coarse(case)
-    first = build_device(params)
+    first = build_meshes(params)
     names = entries(cache)
     assert len(names) == 1 and names[0].startswith(f"{case}-") and names[0].endswith(".npz"), names
     path = cache / names[0]
     if COMM.rank == 0:
         os.utime(path, (0, 0))
     no_meshing(monkeypatch)
-    second = build_device(params)
+    second = build_meshes(params)
     assert same_everywhere(snapshot(first), snapshot(second))
     assert second.counts() == first.counts()
     assert second.build_time > 0
@@ -109,18 +109,18 @@ def test_a_hit_gives_the_same_meshes_without_gmsh(cache, monkeypatch, case):
 
 def test_physics_that_does_not_change_the_mesh_reuses_the_entry(cache, monkeypatch, meshings):
     params = coarse()
-    first = build_device(params)
+    first = build_meshes(params)
     other_ca = params.replace(physics=dataclasses.replace(params.physics, ca=1e-9))
     assert meshcache.cache_key(other_ca) == meshcache.cache_key(params)
     no_meshing(monkeypatch)
-    assert same_everywhere(snapshot(first), snapshot(build_device(other_ca)))
+    assert same_everywhere(snapshot(first), snapshot(build_meshes(other_ca)))
     assert len(entries(cache)) == 1
 
 
 def test_a_moved_cell_is_another_entry(cache, meshings):
     params = coarse()
-    first = build_device(params)
-    moved = build_device(params.with_e(0.3))
+    first = build_meshes(params)
+    moved = build_meshes(params.with_e(0.3))
     assert meshed(meshings) == 2 and len(entries(cache)) == 2
     assert not same_everywhere(snapshot(first), snapshot(moved))
 
@@ -139,12 +139,11 @@ def test_the_key_follows_what_the_mesh_depends_on():
     assert meshcache.cache_key(moduli) == key
 
 
-def test_the_key_follows_the_source_of_the_geometry(monkeypatch):
+def test_the_key_follows_the_mesh_format_not_the_source_text(monkeypatch):
+    """Meshing changes are declared by bumping MESH_FORMAT; a docstring edit keeps the entries."""
     params = coarse()
     key = meshcache.cache_key(params)
-    real = meshcache._module_source_hash
-    monkeypatch.setattr(meshcache, "_module_source_hash",
-                        lambda name: "edited" if name == "gelcell.gmshmodel" else real(name))
+    monkeypatch.setattr(meshcache, "MESH_FORMAT", meshcache.MESH_FORMAT + 1)
     meshcache._environment.cache_clear()
     try:
         assert meshcache.cache_key(params) != key
@@ -152,6 +151,7 @@ def test_the_key_follows_the_source_of_the_geometry(monkeypatch):
         monkeypatch.undo()
         meshcache._environment.cache_clear()
     assert meshcache.cache_key(params) == key
+    assert not any("hash" in name or "source" in name for name in meshcache._environment())
 
 
 def test_only_the_most_recently_used_entries_are_kept(tmp_path, monkeypatch):
@@ -168,8 +168,8 @@ def test_only_the_most_recently_used_entries_are_kept(tmp_path, monkeypatch):
 # --------------------------------------------------------------------------- when it is not used
 def test_disabled_cache_meshes_every_time(cache, monkeypatch, meshings):
     monkeypatch.setenv("GELCELL_MESH_CACHE", "0")
-    first = build_device(coarse())
-    second = build_device(coarse())
+    first = build_meshes(coarse())
+    second = build_meshes(coarse())
     assert meshed(meshings) == 2 and entries(cache) == []
     assert same_everywhere(snapshot(first), snapshot(second))
 
@@ -177,7 +177,7 @@ def test_disabled_cache_meshes_every_time(cache, monkeypatch, meshings):
 @pytest.mark.parametrize("damage", ["garbage", "truncated", "foreign"])
 def test_a_corrupt_entry_is_ignored_and_replaced(cache, meshings, damage):
     params = coarse()
-    first = build_device(params)
+    first = build_meshes(params)
     path = meshcache.cache_path(params)
     if COMM.rank == 0:
         if damage == "garbage":
@@ -188,7 +188,7 @@ def test_a_corrupt_entry_is_ignored_and_replaced(cache, meshings, damage):
         else:
             np.savez(open(path, "wb"), x=np.zeros((3, 3)))
     COMM.Barrier()
-    second = build_device(params)
+    second = build_meshes(params)
     assert meshed(meshings) == 2
     assert same_everywhere(snapshot(first), snapshot(second))
     loaded = meshcache.load(params) is not None if COMM.rank == 0 else True
@@ -201,8 +201,8 @@ def test_an_unwritable_cache_directory_does_not_fail_the_run(shared_tmp_path, mo
         blocker.write_text("")
     COMM.Barrier()
     monkeypatch.setenv("GELCELL_CACHE_DIR", str(blocker / "meshes"))
-    first = build_device(coarse())
-    second = build_device(coarse())
+    first = build_meshes(coarse())
+    second = build_meshes(coarse())
     assert meshed(meshings) == 2
     assert same_everywhere(snapshot(first), snapshot(second))
 
@@ -213,17 +213,18 @@ def test_an_unwritable_cache_directory_does_not_fail_the_run(shared_tmp_path, mo
 def test_a_failed_build_is_not_cached(cache, monkeypatch, error, raised, words):
     def fail(params):
         raise error
-    monkeypatch.setattr(gelcell.geometry, "_build_model", fail)
+    import gelcell.geometry.builtin_model
+    monkeypatch.setattr(gelcell.geometry.builtin_model, "build_model", fail)
     with pytest.raises(raised, match=words):
-        build_device(coarse())
+        build_meshes(coarse())
     assert entries(cache) == []
 
 
 def test_geometry_files_are_not_cached(cache, meshings):
     """A file's content and options are not in any key: it is meshed every time."""
     params = CaseParameters(case="file", geometry=FileGeometry(os.path.join(HERE, "geometry_files", "small.geo")))
-    build_device(params)
-    build_device(params)
+    build_meshes(params)
+    build_meshes(params)
     assert meshed(meshings) == 2 and entries(cache) == []
 
 
@@ -234,7 +235,7 @@ def test_a_warm_run_does_not_import_gmsh(tmp_path):
         import sys
         from gelcell.cli import main
         code = main(["run", "shear", "--mesh-size", "3", "--no-figures", "--quiet", "--out", {str(tmp_path / "out")!r}])
-        print("IMPORTED", sorted(m for m in ("gmsh", "gelcell.gmshmodel", "dolfinx.io.gmshio") if m in sys.modules))
+        print("IMPORTED", sorted(m for m in ("gmsh", "gelcell.geometry.builtin_model", "dolfinx.io.gmshio") if m in sys.modules))
         sys.exit(code)
     """)
     env = dict(os.environ, MPLBACKEND="Agg", GELCELL_CACHE_DIR=str(tmp_path / "meshes"))
@@ -245,7 +246,7 @@ def test_a_warm_run_does_not_import_gmsh(tmp_path):
                               timeout=600)
         assert proc.returncode == 0, proc.stderr[-3000:]
         imported.append(next(ln for ln in proc.stdout.splitlines() if ln.startswith("IMPORTED")))
-    assert imported[0] == "IMPORTED ['dolfinx.io.gmshio', 'gelcell.gmshmodel', 'gmsh']"    # cold: meshed
+    assert imported[0] == "IMPORTED ['dolfinx.io.gmshio', 'gelcell.geometry.builtin_model', 'gmsh']"    # cold: meshed
     assert imported[1] == "IMPORTED []"                                                     # warm: cached
     assert len(os.listdir(tmp_path / "meshes")) == 1
 

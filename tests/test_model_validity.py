@@ -12,10 +12,10 @@ import pytest
 from mpi4py import MPI
 
 from gelcell.errors import ModelLimitError
-from gelcell.geometry import build_device
-from gelcell.parameters import CaseParameters
-from gelcell.validity import (MAX_CELL_STRAIN, MAX_DISPLACEMENT_GRADIENT, check_mesh_size,
-                              check_representable, estimate_mesh, model_warnings, representable_ca)
+from gelcell.geometry.meshes import build_meshes
+from gelcell.case import CaseParameters
+from gelcell.post.validity import (MAX_CELL_STRAIN, MAX_DISPLACEMENT_GRADIENT, check_mesh_size, check_representable,
+                                   estimate_mesh, model_warnings, representable_ca)
 
 
 def test_representable_ca_from_float64():
@@ -34,7 +34,7 @@ def test_representable_ca_from_float64():
 @pytest.mark.parametrize("case", ["shear", "normal"])
 def test_element_estimate_matches_the_mesh(case):
     params = CaseParameters.default(case).with_mesh_size(3)
-    counts = build_device(params, MPI.COMM_WORLD, whole=False).counts()
+    counts = build_meshes(params, MPI.COMM_WORLD, whole=False).counts()
     actual = sum(counts[r]["cells"] for r in ("fluid", "gel", "cell"))
     assert 0.75 < estimate_mesh(params)["elements"] / actual < 1.25
 
@@ -64,7 +64,8 @@ def test_large_strain_run_is_flagged(tmp_path):
     cheaper solve here; both methods report through the same summary)."""
     out = tmp_path / "big"
     proc = subprocess.run([sys.executable, "-m", "gelcell.cli", "run", "shear", "--ca", "5e-5", "--monolithic",
-                           "--mesh-size", "3", "--no-figures", "--quiet", "--out", str(out)], capture_output=True, text=True,
+                           "--mesh-size", "3", "--no-figures", "--quiet", "--out", str(out)],
+                          capture_output=True, text=True,
                           env=dict(os.environ, MPLBACKEND="Agg"), timeout=600)
     assert proc.returncode == 0, proc.stderr
     warned = [line for line in proc.stderr.splitlines() if line.startswith("gelcell: warning: ")]

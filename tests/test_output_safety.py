@@ -294,13 +294,13 @@ def test_cli_sigterm_while_writing_leaves_nothing_behind(old_results):
     out, files, text = old_results
     script = textwrap.dedent(f"""
         import os, signal, sys
-        import gelcell.runner
+        import gelcell.run.steady
         from gelcell.cli import main
-        write_profiles = gelcell.runner.write_profiles
+        write_profiles = gelcell.run.steady.write_profiles
         def killed_while_writing(*args, **kwargs):
             os.kill(os.getpid(), signal.SIGTERM)
             return write_profiles(*args, **kwargs)
-        gelcell.runner.write_profiles = killed_while_writing
+        gelcell.run.steady.write_profiles = killed_while_writing
         sys.exit(main(["run", "shear", "--mesh-size", "3", "--no-figures", "--quiet", "--out", {str(out)!r}]))
     """)
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300,

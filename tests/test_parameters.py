@@ -14,8 +14,10 @@ import pytest
 from mpi4py import MPI
 
 from gelcell import cli
-from gelcell.parameters import (CaseParameters, CellMaterial, Dimensional, MeshSizes,
-                                ParameterError, Physics, ShearGeometry)
+from gelcell.case import load_run_config
+from gelcell.cli.commands import run_config
+from gelcell.case import CaseParameters, CellMaterial, Dimensional, MeshSizes, Physics, ShearGeometry
+from gelcell.errors import ParameterError
 
 EXAMPLES = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "examples")
 SHEAR = CaseParameters.default("shear")
@@ -292,9 +294,9 @@ def test_toml_overrides_and_alternatives(tmp_path):
     assert (p.case, p.with_cell, p.e) == ("normal", False, 0.4)
     assert p.physics.ca == pytest.approx(6e-10) and p.V0 == pytest.approx(6e-6)
     assert p.cell.mu_c == pytest.approx(800.0) and p.cell.poisson_ratio == pytest.approx(0.25)
-    assert p.coupling == {"scheme": "iqn", "robin": {"alpha": 2.0}}
-    q = CaseParameters.from_toml(f, {"physics.ca": 1e-9, "geometry.e": 2.0, "case.cell": True,
-                                     "mesh.size_factor": 2.0, "physics.xi": None})
+    assert load_run_config(f).coupling == {"scheme": "iqn", "robin": {"alpha": 2.0}}
+    q = load_run_config(f, {"physics.ca": 1e-9, "geometry.e": 2.0, "case.cell": True,
+                            "mesh.size_factor": 2.0, "physics.xi": None}).case
     assert q.physics.ca == 1e-9 and q.e == 2.0 and q.with_cell and q.mesh.size_factor == 2.0
     y = CaseParameters.from_dict({"cell": {"youngs_modulus": 3000.0, "poisson_ratio": 0.3}})
     assert y.cell.youngs_modulus == pytest.approx(3000.0) and y.cell.poisson_ratio == pytest.approx(0.3)
@@ -304,12 +306,13 @@ def test_toml_overrides_and_alternatives(tmp_path):
     ("[physics]\nphi = 0.01\n", "physics.phi"),
     ("[geometry]\npost_diameter = 0.4\n", "geometry.post_diameter"),    # a normal-only key in shear
     ("[mesh]\nsize = 2\n", "mesh.size"),
-    ("[solver]\nrtol = 1e-8\n", "solver"),
+    ("[solver]\nrtol = 1e-8\n", "solver.rtol"),
+    ("[tmie]\ndt = 1e-8\n", "tmie"),
     ("[case]\nname = 'shear'\ncells = true\n", "case.cells")])
 def test_toml_unknown_key(tmp_path, text, key):
     f = tmp_path / "bad.toml"
     f.write_text(text)
-    msg = _error(lambda: CaseParameters.from_toml(f))
+    msg = _error(lambda: load_run_config(f))
     assert f"unknown table or key '{key}'" in msg or f"unknown key '{key}'" in msg
     assert str(f) in msg
 
@@ -334,13 +337,13 @@ def test_cli_case_arguments(tmp_path):
     args = parser.parse_args(["mesh", "normal", "--no-cell", "--e", "0.4", "--ca", "1e-9",
                               "--cell-moduli", "1", "--gel-moduli", "10", "--mesh-size", "2",
                               "--out", str(tmp_path)])
-    p = cli.case_parameters_from_args(args)
+    p = run_config(args).case
     assert (p.case, p.with_cell, p.e, p.mesh.size_factor) == ("normal", False, 0.4, 2.0)
     assert p.cell.mu_c == pytest.approx(400.0) and p.dimensional.mu_s == pytest.approx(400e3)
     assert p.physics.ca == pytest.approx(1e-10) and p.V0 == pytest.approx(1e-5)
     args = parser.parse_args(["mesh", "--config", os.path.join(EXAMPLES, "case_baseline_normal.toml"),
                               "--e", "2.0", "--out", str(tmp_path)])
-    assert cli.case_parameters_from_args(args).e == 2.0
+    assert run_config(args).case.e == 2.0
 
 
 @pytest.mark.parametrize("argv, text", [
@@ -360,8 +363,9 @@ def test_cli_parameter_errors(tmp_path, capsys, argv, text):
 
 @pytest.mark.skip_in_parallel
 def test_cli_subprocess_help_and_error(tmp_path):
-    run = lambda *a: subprocess.run([sys.executable, "-m", "gelcell.cli", *a], capture_output=True,
-                                    text=True, timeout=60)
+    def run(*a):
+        return subprocess.run([sys.executable, "-m", "gelcell.cli", *a], capture_output=True, text=True, timeout=60)
+
     h = run("--help")
     assert h.returncode == 0 and "mesh" in h.stdout and "Gamma1" in h.stdout
     bad = run("mesh", "shear", "--e", "0.01", "--out", str(tmp_path / "x"))

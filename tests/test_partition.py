@@ -19,8 +19,8 @@ from dolfinx import mesh as dmesh
 
 from femtools.mesh import PARTITIONER
 from femtools.serialize import CanonicalOrder, MixedCanonical
-from gelcell.geometry import build_device
-from gelcell.parameters import CaseParameters
+from gelcell.geometry.meshes import build_meshes
+from gelcell.case import CaseParameters
 
 COMM = MPI.COMM_WORLD
 
@@ -29,7 +29,7 @@ def test_device_meshes_are_partitioned_the_same_way_every_time():
     p = CaseParameters.default("shear").with_mesh_size(3)
     counts = []
     for _ in range(2):
-        msh, _ = build_device(p, COMM).region("gel")
+        msh, _ = build_meshes(p, COMM).region("gel")
         x = msh.geometry.x[: msh.geometry.index_map().size_local]
         counts.append((msh.topology.index_map(2).size_local, np.round(x, 12).tolist()))
     assert counts[0] == counts[1]

@@ -15,8 +15,9 @@ import gc
 from mpi4py import MPI
 
 from femtools import petscgarbage
-from gelcell.device import Device, coupling_config
-from gelcell.parameters import CaseParameters
+from gelcell.coupled.defaults import coupling_config
+from gelcell.coupled.device import Device
+from gelcell.case import CaseParameters
 
 COMM = MPI.COMM_WORLD
 

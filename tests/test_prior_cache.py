@@ -1,4 +1,4 @@
-"""The device default's linearized prior and its disk cache (``gelcell.priorcache``).
+"""The device default's linearized prior and its disk cache (``gelcell.coupled.priorcache``).
 
 A hit must give the run a miss gives (the same factorisation, hence the same
 iterates), and the cache must never fail a run.  Every test points
@@ -18,10 +18,12 @@ import pytest
 
 from mpi4py import MPI
 
-from gelcell import device as device_module
-from gelcell import diskcache, priorcache
-from gelcell.device import Device, coupling_config
-from gelcell.parameters import CaseParameters
+from gelcell.coupled import device as device_module
+from gelcell import diskcache
+from gelcell.coupled import priorcache
+from gelcell.coupled.defaults import coupling_config
+from gelcell.coupled.device import Device
+from gelcell.case import CaseParameters
 
 COMM = MPI.COMM_WORLD
 MESH = 3.0

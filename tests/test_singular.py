@@ -19,9 +19,9 @@ from femtools.errors import SingularSystemError
 from femtools.mesh import BOTTOM, LEFT, RIGHT, TOP, connected_components, rectangle_mesh
 from fluid import FluidInterface, StokesSolver
 from gel import GelParameters, PoroelasticGelSolver
-from gelcell.boundaries import device_boundaries
-from gelcell.geometry import build_device
-from gelcell.parameters import CaseParameters
+from gelcell.geometry.builtin import device_boundaries
+from gelcell.geometry.meshes import build_meshes
+from gelcell.case import CaseParameters
 
 
 def _column(**anchoring):
@@ -59,7 +59,7 @@ def test_cell_free_to_slide_is_refused():
 
 @pytest.fixture(scope="module")
 def normal_fluid():
-    dev = build_device(CaseParameters.default("normal", False).with_mesh_size(3), MPI.COMM_WORLD,
+    dev = build_meshes(CaseParameters.default("normal", False).with_mesh_size(3), MPI.COMM_WORLD,
                        regions=["fluid"], whole=False)
     return dev.region("fluid")
 
@@ -72,7 +72,7 @@ def _normal_fluid_solver(msh, ft, kind: str) -> StokesSolver:
 
 
 def test_connected_fluid_parts():
-    assert connected_components(build_device(CaseParameters.default("shear", False).with_mesh_size(3),
+    assert connected_components(build_meshes(CaseParameters.default("shear", False).with_mesh_size(3),
                                              MPI.COMM_WORLD, regions=["fluid"], whole=False)
                                 .region("fluid")[0])[1] == 1
 

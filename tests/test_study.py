@@ -16,7 +16,7 @@
 
 import pytest
 
-from gelcell.study import run_study
+from gelcell.run.study import run_study
 
 # serial only: the study is 24 device runs and 4 monolithic ones (~20 s), each of them a path
 # whose 1- and 2-rank answers are compared in test_device.py, test_iterations.py and test_transient.py

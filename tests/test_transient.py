@@ -15,8 +15,8 @@ import pytest
 
 from mpi4py import MPI
 
-from gelcell.runner import solve_partitioned
-from gelcell.transient import COLUMNS
+from gelcell.run.solve import solve_partitioned
+from gelcell.output.timeseries import COLUMNS
 from mpi_run import run_mpi
 from transient_cases import case, run, tau
 

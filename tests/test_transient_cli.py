@@ -22,10 +22,15 @@ from mpi4py import MPI
 
 from coupling.serialization import load_npz
 from gelcell import cli
-from gelcell.timesettings import time_scales
-from gelcell.transient import COLUMNS, PartitionedBackend, run_transient_case
+from gelcell.cli.commands import run_config
+from gelcell.case import OutputSettings, RunConfig, time_scales
+from gelcell.output.timeseries import COLUMNS
+from gelcell.run.backends import PartitionedBackend
+from gelcell.run.transient_case import run_transient_case
 from paused_cli import paused_gelcell, signal_when_paused
 from transient_cases import case, tau
+
+NO_FIGURES = OutputSettings(figures=False)
 
 COMM = MPI.COMM_WORLD
 
@@ -44,7 +49,7 @@ def assert_same_series(a, b, rtol, columns=COLUMNS):
 
 @pytest.fixture(scope="module")
 def settings():
-    from gelcell.timesettings import TimeSettings
+    from gelcell.case import TimeSettings
     p = case("shear")
     return TimeSettings(transient=True, dt=tau(p) / 10, t_end=tau(p) / 2, scheme="bdf2", adaptive=True,
                         time_tol=1e-2, output_every=2)
@@ -55,7 +60,7 @@ def complete_run(tmp_path_factory, settings):
     """One uninterrupted run with every output: ``(directory, summary)`` (a directory shared by the ranks)."""
     path = COMM.bcast(str(tmp_path_factory.mktemp("transient")) if COMM.rank == 0 else None, root=0)
     out = os.path.join(path, "run")
-    return out, run_transient_case(case("shear"), settings, out, comm=COMM, figures=True)
+    return out, run_transient_case(RunConfig(case("shear"), time=settings), out, comm=COMM)
 
 
 def test_outputs_of_a_transient_run(complete_run, settings):
@@ -122,14 +127,15 @@ def test_interrupted_run_resumes_to_the_same_result(shared_tmp_path, settings, c
 
     monkeypatch.setattr(PartitionedBackend, "window", failing)
     with pytest.raises(Interrupt):
-        run_transient_case(case("shear"), settings, out, comm=COMM, figures=False, fields=False)
+        run_transient_case(RunConfig(case("shear"), time=settings, output=NO_FIGURES), out, comm=COMM, fields=False)
     monkeypatch.setattr(PartitionedBackend, "window", window)
     if COMM.rank == 0:
         assert os.path.isfile(os.path.join(out + ".partial", "checkpoint.npz"))
         assert not os.path.exists(out)
     resumed_at = int(load_npz(os.path.join(out + ".partial", "checkpoint.npz"))["window"])   # windows done
     COMM.Barrier()
-    run_transient_case(case("shear"), settings, out, comm=COMM, figures=False, fields=False, resume=True)
+    run_transient_case(RunConfig(case("shear"), time=settings, output=NO_FIGURES), out, comm=COMM, fields=False,
+                       resume=True)
     if COMM.rank == 0:
         assert not os.path.exists(out + ".partial")
         resumed, uninterrupted = read_series(out), read_series(reference)
@@ -160,7 +166,8 @@ def test_sigint_keeps_the_checkpoint_and_resume_finishes(tmp_path):
     assert ref.wait(timeout=600) == 0, ref.stdout.read()
     out = tmp_path / "res"
     # SIGINT arrives at the start of window 4 (window 3 is checkpointed)
-    proc = paused_gelcell(common + ["--out", str(out)], target="gelcell.device.GelParticipant.advance", call=4)
+    proc = paused_gelcell(common + ["--out", str(out)], target="gelcell.coupled.participants.GelParticipant.advance",
+                          call=4)
     signal_when_paused(proc, signal.SIGINT)
     assert proc.returncode != 0
     assert (tmp_path / "res.partial" / "checkpoint.npz").is_file()
@@ -221,14 +228,14 @@ def test_malformed_inflow_table_is_refused(tmp_path, cli_stderr, text, why):
 
 def test_inflow_table_from_a_config_file_is_relative_to_it(tmp_path):
     """A [time] table in a case file; a relative table path is read next to the file."""
-    from gelcell.parameters import CaseParameters
+    from gelcell.case import CaseParameters
     (tmp_path / "pump.csv").write_text("t,f\n0,0\n1e-6,1\n")
     cfg = tmp_path / "case.toml"
     cfg.write_text('[case]\nname = "shear"\n[time]\ntransient = true\ninflow = "table:pump.csv"\n'
                    't_end = 2e-6\nscheme = "bdf2"\n')
     args = cli.build_parser().parse_args(["run", "--config", str(cfg), "--out", str(tmp_path / "o")])
-    params = cli.case_parameters_from_args(args)
-    settings = cli.time_settings_from_args(args, params)
+    config = run_config(args)
+    params, settings = config.case, config.time
     assert isinstance(params, CaseParameters) and settings.transient and settings.scheme == "bdf2"
     assert settings.waveform(5e-7) == pytest.approx(0.5)
     assert settings.inflow == f"table:{tmp_path / 'pump.csv'}"
@@ -246,19 +253,17 @@ def test_resume_refuses_another_case_and_missing_checkpoints(tmp_path, cli_stder
     # a checkpoint of a shear run: resuming it as the normal-flow device is refused before meshing
     partial = tmp_path / "run.partial"
     partial.mkdir()
-    from gelcell.timesettings import TimeSettings
-    from gelcell.transient import run_record
-    record = run_record(case("shear"), TimeSettings(transient=True, t_end=1e-6),
-                        {"monolithic": False, "scheme": "serial", "acceleration": "iqn-ils", "gamma2": "schur",
-                         "coupling": {}})
-    (partial / "run.json").write_text(json.dumps(record, default=str))
+    from gelcell.case import TimeSettings
+    from gelcell.case.casefile import toml_text
+    stored = RunConfig(case("shear"), time=TimeSettings(transient=True, t_end=1e-6))
+    (partial / "case.toml").write_text(toml_text(stored.to_tables()))
     (partial / "checkpoint.npz").write_bytes(b"")
     assert main("run", "normal", "--mesh-size", "3", "--resume", str(out)) == 2
     err = cli_stderr()
     assert "another run" in err and "case" in err, err
     assert main("run", "shear", "--mesh-size", "3", "--transient", "--dt", "1e-9", "--resume", str(out)) == 2
     assert "time settings" in cli_stderr()
-    assert sorted(os.listdir(partial)) == ["checkpoint.npz", "run.json"] and not out.exists()
+    assert sorted(os.listdir(partial)) == ["case.toml", "checkpoint.npz"] and not out.exists()
 
 
 def test_time_scales_follow_the_model():

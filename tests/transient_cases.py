@@ -6,10 +6,13 @@ import numpy as np
 
 from mpi4py import MPI
 
-from gelcell.device import Device, coupling_config
-from gelcell.parameters import CaseParameters
-from gelcell.timesettings import TimeSettings, time_scales
-from gelcell.transient import COLUMNS, MonolithicBackend, PartitionedBackend, TransientRun
+from gelcell.coupled.defaults import coupling_config
+from gelcell.coupled.device import Device
+from gelcell.case import CaseParameters
+from gelcell.case import time_scales, TimeSettings
+from gelcell.output.timeseries import COLUMNS
+from gelcell.run.backends import MonolithicBackend, PartitionedBackend
+from gelcell.run.transient import TransientRun
 
 #: every element size x3: the test-sized meshes of the coupling study
 MESH_SIZE = 3.0

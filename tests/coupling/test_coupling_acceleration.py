@@ -146,7 +146,8 @@ def test_qr2_deletes_what_gram_schmidt_deletes(n, m):
     rng = np.random.default_rng(n + m)
     matrix = rng.standard_normal((n, m)) * rng.uniform(1e-3, 1e3, m)
     for j, (a, b) in {3: (1, 2), 7: (0, 5), 9: (4, 8)}.items():
-        matrix[:, j] = matrix[:, a] - 2 * matrix[:, b] + 1e-6 * np.linalg.norm(matrix[:, a]) * rng.standard_normal(n) / n
+        noise = 1e-6 * np.linalg.norm(matrix[:, a]) * rng.standard_normal(n) / n
+        matrix[:, j] = matrix[:, a] - 2 * matrix[:, b] + noise
     matrix[:, 10] = matrix[:, 6]
     matrix[:, 11] = 0.0
     for limit in (1e-3, 1e-8):

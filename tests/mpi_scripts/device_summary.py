@@ -4,9 +4,9 @@ import sys
 
 from mpi4py import MPI
 
-from gelcell.parameters import CaseParameters
-from gelcell.results import flat_quantities
-from gelcell.runner import solve_partitioned
+from gelcell.case import CaseParameters
+from gelcell.post.quantities import flat_quantities
+from gelcell.run.solve import solve_partitioned
 
 case, size = sys.argv[1], float(sys.argv[2])
 run = solve_partitioned(CaseParameters.default(case, True).with_mesh_size(size), verbose=False, checks=False)

@@ -3,10 +3,13 @@ import json
 
 from mpi4py import MPI
 
-from gelcell.device import Device, coupling_config
-from gelcell.parameters import CaseParameters
-from gelcell.timesettings import TimeSettings, time_scales
-from gelcell.transient import COLUMNS, PartitionedBackend, TransientRun
+from gelcell.coupled.defaults import coupling_config
+from gelcell.coupled.device import Device
+from gelcell.case import CaseParameters
+from gelcell.case import time_scales, TimeSettings
+from gelcell.output.timeseries import COLUMNS
+from gelcell.run.backends import PartitionedBackend
+from gelcell.run.transient import TransientRun
 
 params = CaseParameters.default("shear").with_mesh_size(3.0)
 tau = time_scales(params)["consolidation"]

@@ -1,12 +1,15 @@
-"""Partitioned run of a device from a geometry file; prints the summary's scalars and per-cell values as JSON (rank 0)."""
+"""Partitioned run of a device from a geometry file.
+
+Prints the summary's scalars and per-cell values as JSON (rank 0).
+"""
 import json
 import sys
 
 from mpi4py import MPI
 
-from gelcell.parameters import CaseParameters
-from gelcell.results import flat_quantities
-from gelcell.runner import solve_partitioned
+from gelcell.case import CaseParameters
+from gelcell.post.quantities import flat_quantities
+from gelcell.run.solve import solve_partitioned
 
 path = sys.argv[1]
 run = solve_partitioned(CaseParameters.from_dict({"geometry": {"file": path}}), verbose=False, checks=False)

@@ -1,0 +1,171 @@
+"""Settings of a time-dependent run and the time scales they default from (model.md section 8).
+
+Times are in the paper's unit L0/V0 (the source paper's Δt = 5e-8 is in this
+unit); the output reports them in seconds as well.  One
+:class:`TimeSettings` comes from the ``[time]`` table of a case file and the
+command line (``--transient --dt --t-end --until-steady --time-scheme
+--adaptive --time-tol --inflow``), and is validated before anything is meshed:
+a bad value raises :class:`~gelcell.errors.ParameterError` naming it.
+
+Time scales (:func:`time_scales`), paper units:
+
+* consolidation  tau_c = H^2 / (M k),  M = phi_s0 (2 + lambda_s) the drained
+  oedometric modulus, k = phi_f0 / (xi Ca phi_s0) the Darcy mobility and H
+  the drainage length: the chamber depth R (1 - cos theta) of the shear
+  device (drained through Gamma1 only), half the gel layer of the normal-flow
+  device (drained through Gamma1 and Gamma3).  tau_c is proportional to Ca,
+  so the physical time tau_c L0 / V0 does not depend on the flow speed.
+* Kelvin-Voigt  tau_KV = phi_f0 Ca / phi_s0: the viscous interstitial fluid
+  moving with the network in the first instants (undrained start-up).
+
+Defaults: ``dt = tau_c / 40`` (fixed steps); adaptive runs start at
+``tau_KV / 10`` and grow.  A run stops at ``t_end``, or when steady: the
+gel's displacement changes by less than ``steady_tol`` of itself per
+consolidation time tau_c (relative change per unit time, in units of tau_c).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import typing
+
+from gelcell.case.inflow import Waveform, parse_inflow
+from gelcell.case.parameters import CaseParameters
+from gelcell.errors import ParameterError
+
+__all__ = ["TimeSettings", "time_scales", "TIME_KEYS"]
+
+#: keys of the ``[time]`` table
+TIME_KEYS = ("transient", "dt", "t_end", "until_steady", "scheme", "adaptive", "time_tol", "steady_tol",
+             "inflow", "output_every", "max_windows")
+
+
+def time_scales(params: CaseParameters) -> dict[str, float]:
+    """``{"consolidation", "kelvin_voigt", "drainage_length"}`` in paper units (see the module docstring)."""
+    ph, g = params.physics, params.geometry
+    if params.case == "shear":
+        depth = g.radius * (1.0 - math.cos(g.half_angle))
+    elif params.case == "file":
+        depth = g.contents.gel_depth          # the gel's area over the fluid-gel interfaces' length
+    else:
+        depth = 0.5 * g.gel_length
+    modulus = ph.phi_s0 * (2.0 + ph.lambda_s)
+    mobility = (1.0 - ph.phi_s0) / (ph.xi * ph.ca * ph.phi_s0)
+    return {"consolidation": depth**2 / (modulus * mobility),
+            "kelvin_voigt": (1.0 - ph.phi_s0) * ph.ca / ph.phi_s0,
+            "drainage_length": depth}
+
+
+def _number(problems: list, key: str, value, positive: bool = True, below: float | None = None):
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        problems.append(f"parameter 'time.{key}' = {value!r} must be a finite number")
+        return None
+    if positive and not value > 0:
+        problems.append(f"parameter 'time.{key}' = {value!r} must be > 0")
+    elif below is not None and not value < below:
+        problems.append(f"parameter 'time.{key}' = {value!r} must be < {below:g}")
+    return float(value)
+
+
+@dataclasses.dataclass(frozen=True)
+class TimeSettings:
+    """How a time-dependent run steps and stops (see the module docstring).
+
+    Attributes:
+        transient: run in time (``--transient`` or ``[time] transient = true``).
+        dt: fixed step, or the first step of an adaptive run (None: from the time scales).
+        t_end: end time (None: until steady).
+        until_steady: stop when steady (also the default when t_end is not given).
+        scheme: ``"be"`` (backward Euler) or ``"bdf2"``.
+        adaptive: choose dt from an error estimate with tolerance ``time_tol``.
+        time_tol: relative local error per step allowed by the adaptive control, in (0, 1).
+        steady_tol: relative change per consolidation time below which the run is steady, in (0, 1).
+        inflow: the waveform specification (:mod:`gelcell.case.inflow`).
+        output_every: an XDMF frame every this many windows (and the last one).
+        max_windows: the run stops with an error after this many windows.
+        waveform: the parsed ``inflow``.
+    """
+
+    transient: bool = False
+    dt: float | None = None
+    t_end: float | None = None
+    until_steady: bool = False
+    scheme: str = "be"
+    adaptive: bool = False
+    time_tol: float = 1e-3
+    steady_tol: float = 1e-4
+    inflow: str = "step"
+    output_every: int = 5
+    max_windows: int = 20000
+    base_dir: str | None = dataclasses.field(default=None, compare=False)
+
+    def __post_init__(self):
+        problems: list[str] = []
+        if not isinstance(self.transient, bool):
+            problems.append(f"parameter 'time.transient' = {self.transient!r} must be true or false")
+        _number(problems, "dt", self.dt)
+        _number(problems, "t_end", self.t_end)
+        for key in ("until_steady", "adaptive"):
+            if not isinstance(getattr(self, key), bool):
+                problems.append(f"parameter 'time.{key}' = {getattr(self, key)!r} must be true or false")
+        if self.scheme not in ("be", "bdf2"):
+            problems.append(f"parameter 'time.scheme' = {self.scheme!r} must be 'be' (backward Euler) "
+                            f"or 'bdf2'")
+        _number(problems, "time_tol", self.time_tol, below=1.0)
+        _number(problems, "steady_tol", self.steady_tol, below=1.0)
+        for key in ("output_every", "max_windows"):
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                problems.append(f"parameter 'time.{key}' = {value!r} must be an integer >= 1")
+        if problems:
+            raise ParameterError("; ".join(problems))
+        waveform = parse_inflow(self.inflow, self.base_dir)
+        object.__setattr__(self, "waveform", waveform)
+        if waveform.kind == "table":
+            # keep the table's absolute path, so that a resumed run finds it from anywhere
+            path = self.inflow.partition(":")[2].strip()
+            if not os.path.isabs(path):
+                path = os.path.abspath(os.path.join(self.base_dir or os.getcwd(), path))
+            object.__setattr__(self, "inflow", f"table:{path}")
+        if self.dt is not None and self.t_end is not None and self.dt > self.t_end:
+            raise ParameterError(f"parameter 'time.dt' = {self.dt:g} must not exceed 'time.t_end' = "
+                                 f"{self.t_end:g}")
+        if (self.until_steady or self.t_end is None) and waveform.constant_after is None:
+            raise ParameterError(f"the inflow {self.inflow!r} never becomes constant, so the run cannot "
+                                 f"stop when steady: give 'time.t_end' (--t-end)")
+
+    waveform: Waveform = dataclasses.field(init=False, repr=False, compare=False, default=None)
+
+    @property
+    def stops_when_steady(self) -> bool:
+        return self.until_steady or self.t_end is None
+
+    @classmethod
+    def from_dict(cls, table: typing.Mapping | None, overrides: typing.Mapping | None = None,
+                  source: str = "input", base_dir: str | None = None) -> "TimeSettings":
+        """From a ``[time]`` table and command-line overrides (``None`` values ignored)."""
+        data = dict(table or {})
+        unknown = [k for k in data if k not in TIME_KEYS]
+        if unknown:
+            raise ParameterError(f"unknown key 'time.{unknown[0]}' in {source} (known: {list(TIME_KEYS)})")
+        data.update({k: v for k, v in (overrides or {}).items() if v is not None})
+        return cls(**data, base_dir=base_dir)
+
+    def to_dict(self) -> dict:
+        """The settings as a ``[time]`` table (what ``from_dict`` reads back)."""
+        return {k: getattr(self, k) for k in TIME_KEYS}
+
+    def resolved(self, params: CaseParameters) -> dict:
+        """dt, its bounds and the stop rule for ``params`` (defaults from :func:`time_scales`)."""
+        scales = time_scales(params)
+        tau = scales["consolidation"]
+        if self.dt is not None:
+            dt = self.dt
+        else:
+            dt = scales["kelvin_voigt"] / 10 if self.adaptive else tau / 40
+        return {"dt": dt, "dt_max": max(2.0 * tau, dt), "dt_min": 1e-6 * min(dt, scales["kelvin_voigt"]),
+                "t_end": self.t_end, "until_steady": self.stops_when_steady, "scales": scales}

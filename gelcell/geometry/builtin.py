@@ -1,0 +1,137 @@
+"""The two built-in devices without meshing them: their cells, boundary conditions and closed-form measures.
+
+model.md sections 3 and 4.  Shear flow: parabolic inflow with maximum 1 at
+the inlet, zero traction at the outlet, no slip on the channel walls;
+v_f = 0 and u_s = 0 on the bowl.  Normal flow: uniform inflow (1, 0), zero
+traction at the outlet; v_f = 0 and u_s = 0 on the posts; symmetry (zero
+normal velocity and displacement, zero tangential traction) on y = 0 and
+y = H.  The cell's flat edge on y = H is a symmetry line too.  Several
+cells: each has its own Gamma2 (``Gamma2_k``, facet tag ``gamma2_tag(k)``).
+"""
+
+from __future__ import annotations
+
+import math
+
+from gelcell.case import CaseParameters
+from gelcell.geometry.layout import CellSpec, DeviceBoundaries, DeviceLayout, ParabolicInflow
+from gelcell.geometry.tags import REGIONS, Tag, cell_region_tag, gamma2_name, gamma2_tag
+
+__all__ = ["builtin_cells", "builtin_layout", "device_boundaries", "closed_form_measures"]
+
+
+# --------------------------------------------------------------------------- closed forms
+def closed_form_measures(params: CaseParameters) -> dict:
+    """Exact areas and boundary lengths of the geometry of ``params``.
+
+    Returns ``{"whole": {"area": {Tag: a}, "length": {Tag: l}}, "fluid": {"area": a,
+    "length": {Tag: l}}, "gel": ..., "cell": ...}``; a region's lengths are those
+    of the tagged facets of that region's own mesh.  Several cells: their
+    areas and Gamma2 lengths are summed under Tag.CELL and Tag.GAMMA2.
+    """
+    cells = params.geometry.cell_list() if params.with_cell else []
+    out = _shear_measures(params.geometry, cells) if params.case == "shear" else \
+        _normal_measures(params.geometry, cells)
+    if not params.with_cell:
+        del out["cell"]
+    out["whole"] = _whole_measures(out)
+    return out
+
+
+def _shear_measures(g, cells) -> dict:
+    """The shear device's regions: a channel over a circular-segment gel."""
+    R, th, W, c, L = g.radius, g.half_angle, g.channel_height, g.chamber_width, g.channel_length
+    a_cell = sum(math.pi * (0.5 * d) ** 2 for _, _, d in cells)
+    gamma2 = sum(math.pi * d for _, _, d in cells)
+    fluid = {"area": L * W, "length": {Tag.INLET: W, Tag.OUTLET: W, Tag.WALL: 2 * L - c, Tag.GAMMA1: c}}
+    gel = {"area": R * R * (th - math.sin(th) * math.cos(th)) - a_cell,
+           "length": {Tag.GAMMA1: c, Tag.BOWL: 2 * R * th}}
+    if cells:
+        gel["length"][Tag.GAMMA2] = gamma2
+    return {"fluid": fluid, "gel": gel, "cell": {"area": a_cell, "length": {Tag.GAMMA2: gamma2}}}
+
+
+def _normal_measures(g, cells) -> dict:
+    """The normal-flow device's half: channels either side of a gel with a post; cells on the line halved."""
+    H, Lg, D = g.height, g.gel_length, g.post_diameter
+    Lf = g.upstream_length + g.downstream_length
+    share = [0.5 if g.on_symmetry_line(y) else 1.0 for _, y, _ in cells]
+    a_cell = sum(s * math.pi * (0.5 * d) ** 2 for s, (_, _, d) in zip(share, cells))
+    gamma2 = sum(s * math.pi * d for s, (_, _, d) in zip(share, cells))
+    cut = sum(d for s, (_, _, d) in zip(share, cells) if s < 1.0)
+    fluid = {"area": Lf * H, "length": {Tag.INLET: H, Tag.OUTLET: H, Tag.GAMMA1: H, Tag.GAMMA3: H,
+                                        Tag.SYMMETRY_BOTTOM: Lf, Tag.SYMMETRY_TOP: Lf}}
+    gel = {"area": Lg * H - math.pi * (0.5 * D) ** 2 - a_cell,
+           "length": {Tag.GAMMA1: H, Tag.GAMMA3: H, Tag.POST: math.pi * D,
+                      Tag.SYMMETRY_BOTTOM: Lg - 2 * D, Tag.SYMMETRY_TOP: Lg - cut}}
+    cell = {"area": a_cell, "length": {Tag.GAMMA2: gamma2}}
+    if cells:
+        gel["length"][Tag.GAMMA2] = gamma2
+    if cut:
+        cell["length"][Tag.SYMMETRY_TOP] = cut
+    return {"fluid": fluid, "gel": gel, "cell": cell}
+
+
+def _whole_measures(regions: dict) -> dict:
+    """The whole device's areas per region tag and lengths per facet tag (interfaces counted once)."""
+    area = {REGIONS[k]: v["area"] for k, v in regions.items()}
+    length: dict = {}
+    for v in regions.values():
+        for tag, value in v["length"].items():
+            shared = tag in (Tag.GAMMA1, Tag.GAMMA2, Tag.GAMMA3)
+            length[tag] = value if shared else length.get(tag, 0.0) + value
+    return {"area": area, "length": length}
+
+
+def builtin_cells(params) -> list[CellSpec]:
+    """The cells of a built-in device (none without the cell)."""
+    if not params.with_cell:
+        return []
+    cells = params.geometry.cell_list()
+    n = len(cells)
+    out = []
+    for k, (x, y, d) in enumerate(cells, start=1):
+        half = params.case == "normal" and params.geometry.on_symmetry_line(y)
+        out.append(CellSpec(index=k, name="cell" if n == 1 else f"cell_{k}", region_tag=cell_region_tag(k),
+                            facet_tag=gamma2_tag(k), interface=gamma2_name(k, n), centre=(x, y), diameter=d,
+                            symmetry=(1,) if half else ()))
+    return out
+
+
+def device_boundaries(case: str, with_cell: bool, channel_height: float = 0.2,
+                      cells: list[CellSpec] | None = None) -> DeviceBoundaries:
+    """The boundary conditions of the ``"shear"`` or ``"normal"`` device (``cells``: its cells, default one)."""
+    if cells is None:
+        cell_ifaces = {"Gamma2": int(Tag.GAMMA2)} if with_cell else {}
+    else:
+        cell_ifaces = {c.interface: c.facet_tag for c in cells} if with_cell else {}
+    if case == "shear":
+        return DeviceBoundaries(
+            fluid_velocity=[([int(Tag.INLET)], ParabolicInflow(channel_height)),
+                            ([int(Tag.WALL)], (0.0, 0.0))],
+            fluid_component=[],
+            gel_no_slip=[int(Tag.BOWL)],
+            gel_symmetry=[],
+            cell_symmetry=[],
+            fluid_interfaces={"Gamma1": int(Tag.GAMMA1)},
+            cell_interfaces=cell_ifaces)
+    if case == "normal":
+        sym = [int(Tag.SYMMETRY_BOTTOM), int(Tag.SYMMETRY_TOP)]
+        return DeviceBoundaries(
+            fluid_velocity=[([int(Tag.INLET)], (1.0, 0.0))],
+            fluid_component=[(sym, 1, 0.0)],
+            gel_no_slip=[int(Tag.POST)],
+            gel_symmetry=[(sym, 1)],
+            cell_symmetry=([([int(Tag.SYMMETRY_TOP)], 1)] if cells is None or any(c.symmetry for c in cells)
+                           else []),
+            fluid_interfaces={"Gamma1": int(Tag.GAMMA1), "Gamma3": int(Tag.GAMMA3)},
+            cell_interfaces=cell_ifaces)
+    raise ValueError(f"case must be 'shear' or 'normal', got {case!r}")
+
+
+def builtin_layout(params: CaseParameters) -> DeviceLayout:
+    """The layout of the ``shear`` or ``normal`` device of ``params``."""
+    cells = builtin_cells(params)
+    b = device_boundaries(params.case, params.with_cell, getattr(params.geometry, "channel_height", 0.2), cells)
+    return DeviceLayout(boundaries=b, cells=cells, fluid_interfaces=dict(b.fluid_interfaces),
+                        wide=params.case == "normal")

@@ -1,0 +1,211 @@
+"""What the model can answer: checks before solving and warnings after.
+
+Before solving (:func:`check_case`, raising :class:`ModelLimitError`):
+
+* the scaled problem must be representable in float64 (:func:`representable_ca`);
+* the mesh must fit in this machine's memory (:func:`estimate_mesh`), estimated
+  from the element sizes and the closed-form areas and lengths, before gmsh runs.
+
+After solving (:func:`model_warnings`), by the case's kinematics
+(``model.kinematics``):
+
+* ``"small"``: the equations on the undeformed domain neglect geometric terms
+  of relative size max |grad u_s| (``model.max_displacement_gradient``); above
+  :data:`MAX_NEGLECTED` (1 %) the answer is reported with a warning, and the
+  cell above :data:`MAX_CELL_STRAIN`, since the gel that loads it is not in
+  finite strain;
+* ``"finite"``: nothing geometric is neglected; above
+  :data:`MAX_DISPLACEMENT_GRADIENT` (gel) or :data:`MAX_CELL_STRAIN` (cell)
+  the warning is about the material laws: the neo-Hookean network and cell
+  with the Table 1 constants, measured at small strain, are extrapolated.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+
+from gelcell.case import CaseParameters
+from gelcell.errors import ModelLimitError
+from gelcell.geometry import Tag, described
+from gelcell.geometry.builtin import closed_form_measures
+
+__all__ = ["representable_ca", "check_representable", "estimate_mesh", "check_mesh_size", "check_case",
+           "machine_memory", "model_warnings", "MAX_DISPLACEMENT_GRADIENT", "MAX_CELL_STRAIN", "MAX_NEGLECTED"]
+
+# --------------------------------------------------------------------------- representable Ca
+#: Headroom for the solver-unit values that multiply Ca.  With s = d = Ca every
+#: physical quantity is Ca times a solver-unit value v: displacements Ca u_hat,
+#: stresses Ca sigma_hat, displacement gradients Ca grad u_hat (|grad u_hat| ~ 5e3
+#: at baseline), J = 1 + Ca theta, and the drag Ca xi (xi = 4.5e4).  The summary
+#: and the forms also square them: von Mises measures and norms hold (Ca v)^2,
+#: the Green-Lagrange strain H^T H with H = Ca grad u_hat, the forms d G G^T (a
+#: Ca^2 term in paper units).  1e8 covers these values with x1e3 to spare.
+SOLVER_VALUE_HEADROOM = 1e8
+
+
+def representable_ca() -> tuple[float, float]:
+    """The range of Ca whose scaled problem float64 represents.
+
+    Every product above must stay a normal float64 number, squares included:
+    (Ca V)^2 <= max and (Ca / V)^2 >= tiny for solver values within a factor
+    V = SOLVER_VALUE_HEADROOM of 1, i.e.
+
+        sqrt(tiny) V <= Ca <= sqrt(max) / V,   tiny = 2.2e-308, max = 1.8e308,
+
+    about [1.5e-146, 1.3e146].  Outside it a squared strain underflows to an
+    exact 0 (Ca = 1e-300 reports a zero cell strain) or a product overflows
+    to inf (Ca = 1e300).
+    """
+    fi = sys.float_info
+    return math.sqrt(fi.min) * SOLVER_VALUE_HEADROOM, math.sqrt(fi.max) / SOLVER_VALUE_HEADROOM
+
+
+def check_representable(params: CaseParameters) -> None:
+    """Raise :class:`ModelLimitError` if the case's Ca is outside :func:`representable_ca`."""
+    lo, hi = representable_ca()
+    ca = params.physics.ca
+    if not lo <= ca <= hi:
+        raise ModelLimitError(
+            f"Ca = {ca:g} cannot be represented: the solvers work in units of Ca (stress Ca mu_s, "
+            f"displacement Ca L0) and square Ca-sized quantities, which float64 holds only for "
+            f"Ca in [{lo:.1e}, {hi:.1e}]; choose --ca (or --gel-moduli, which divides Ca) in that range")
+
+
+# --------------------------------------------------------------------------- mesh size
+#: Area of a triangle of target size h: (sqrt(3)/4) h^2 (equilateral).
+_TRIANGLE = math.sqrt(3.0) / 4.0
+#: Peak memory of a run: BASE_MEMORY + MEMORY_PER_ELEMENT N log2(N) bytes for N elements (the
+#: direct solvers' fill grows like N log N in 2-D).  Fitted to the peak resident memory of
+#: ``gelcell run shear --monolithic`` (the heaviest run) at size factors 3, 1 and 0.5: 0.28,
+#: 0.68 and 2.09 GB for 1.6e3, 9.1e3 and 3.0e4 elements; the partitioned run needs about half.
+BASE_MEMORY = 0.25e9
+MEMORY_PER_ELEMENT = 4.2e3
+#: Refuse meshes whose estimated memory exceeds this share of the machine's memory.
+MEMORY_SHARE = 0.8
+
+
+def _band_elements(length: float, sides: int, size: float, band: float, far: float, growth: float) -> float:
+    """Elements in a refinement band of ``length`` (uniform ``size`` over ``band``, then growing
+    linearly by ``growth`` per unit distance up to ``far``), on one or two ``sides``."""
+    uniform = band / (_TRIANGLE * size * size)
+    graded = (1.0 / size - 1.0 / far) / (_TRIANGLE * growth) if far > size else 0.0
+    return sides * length * (uniform + graded)
+
+
+def estimate_mesh(params: CaseParameters) -> dict:
+    """Estimated element count of the device mesh (fluid + gel + cell) from its size field.
+
+    The far field holds area / (sqrt(3)/4 h^2) elements; each refinement band
+    (Gamma1/Gamma3 on both sides, the gel's walls on one side, the cell surface
+    on the gel's side) adds its uniform part and the graded part that grows to the
+    far-field size.  Against the meshes of both devices at size factors 3 to 0.5
+    it is within 20 %.  Returns the element count and the memory a run needs.
+    """
+    h = params.element_sizes()
+    m = closed_form_measures(params)
+    far = max(h["h_fluid"], h["h_gel"])
+    count = (m["fluid"]["area"] / (_TRIANGLE * h["h_fluid"] ** 2)
+             + m["gel"]["area"] / (_TRIANGLE * h["h_gel"] ** 2))
+    gel_lengths = m["gel"]["length"]
+    interfaces = gel_lengths.get(Tag.GAMMA1, 0.0) + gel_lengths.get(Tag.GAMMA3, 0.0)
+    walls = gel_lengths.get(Tag.BOWL, 0.0) + gel_lengths.get(Tag.POST, 0.0)
+    for length, sides in ((interfaces, 2), (walls, 1)):
+        count += _band_elements(length, sides, h["h_layer"], h["layer_band"], far, h["growth"])
+    if params.with_cell:
+        count += m["cell"]["area"] / (_TRIANGLE * h["h_cell"] ** 2)
+        count += _band_elements(gel_lengths[Tag.GAMMA2], 1, h["h_cell"], h["cell_band"], far, h["growth"])
+    return {"elements": count, "memory_bytes": _memory(count)}
+
+
+def _memory(elements: float) -> float:
+    return BASE_MEMORY + MEMORY_PER_ELEMENT * elements * math.log2(max(elements, 2.0))
+
+
+def machine_memory() -> int:
+    """Physical memory of this machine in bytes (or of the cgroup it runs in, if smaller)."""
+    total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    for path in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
+        try:
+            with open(path) as f:
+                text = f.read().strip()
+        except OSError:
+            continue
+        if text.isdigit():
+            total = min(total, int(text))
+    return total
+
+
+def check_mesh_size(params: CaseParameters, memory: int | None = None) -> dict:
+    """Raise :class:`ModelLimitError` if the estimated mesh does not fit in ``memory``."""
+    est = estimate_mesh(params)
+    memory = machine_memory() if memory is None else memory
+    fits = lambda p: estimate_mesh(p)["memory_bytes"] <= MEMORY_SHARE * memory   # noqa: E731
+    if not fits(params):
+        coarsest = params.mesh.n_cell_edges / params.mesh.MIN_CELL_EDGES
+        if not fits(params.with_mesh_size(coarsest)):
+            raise ModelLimitError(f"even the coarsest mesh (--mesh-size {coarsest:g}) needs more than this "
+                                  f"machine's {memory / 2**30:.3g} GiB")
+        lo, hi = params.mesh.size_factor, coarsest
+        for _ in range(40):             # bisect for the finest size factor that fits
+            mid = math.sqrt(lo * hi)
+            lo, hi = (lo, mid) if fits(params.with_mesh_size(mid)) else (mid, hi)
+        raise ModelLimitError(
+            f"--mesh-size {params.mesh.size_factor:g} would make about {est['elements']:.2g} elements, "
+            f"which need about {est['memory_bytes'] / 2**30:.3g} GiB; this machine has "
+            f"{memory / 2**30:.3g} GiB: choose --mesh-size {1.01 * hi:.2g} or larger")
+    return est
+
+
+def check_case(params: CaseParameters) -> None:
+    """Every check that must pass before a case is meshed or solved (a geometry file is read and checked)."""
+    described(params)
+    check_representable(params)
+    if params.case != "file":        # a geometry file's mesh size is the file's: no closed-form estimate
+        check_mesh_size(params)
+
+
+# --------------------------------------------------------------------------- after solving
+#: Small-strain path: the largest displacement gradient |grad u_s| (Frobenius norm, paper units) for
+#: which it is reported without a warning.  The geometric terms it drops (the first Piola stress, the
+#: spatial gradients, the moving interfaces and fluid domain) are of relative size |F - I|: above 1 %
+#: the small-strain answer differs from the finite-strain one by more than 1 % (measured on the shear
+#: device: docs/finite-strain.md).
+MAX_NEGLECTED = 0.01
+#: Finite-strain path: the largest displacement gradient of the gel reported without a warning about
+#: its material law: the neo-Hookean network with the Table 1 constants, which come from small-strain
+#: measurements, is extrapolated beyond it.
+MAX_DISPLACEMENT_GRADIENT = 0.05
+#: Largest von Mises Green-Lagrange strain of the cell reported without a warning (both paths).
+MAX_CELL_STRAIN = 0.05
+
+
+def _exceeds(value, limit) -> bool:
+    return value is not None and not value <= limit
+
+
+def model_warnings(model: dict) -> list[str]:
+    """Warnings for a solved case whose ``model`` block (of summary.json) exceeds the thresholds.
+
+    ``model["kinematics"]`` selects the path (missing: ``"small"``).
+    """
+    finite = model.get("kinematics", "small") == "finite"
+    grad, strain = model.get("max_displacement_gradient"), model.get("max_cell_strain")
+    grad_limit = MAX_DISPLACEMENT_GRADIENT if finite else MAX_NEGLECTED
+    if finite:
+        grad_why = ("the finite-strain model holds, but its neo-Hookean network with the Table 1 constants "
+                    "(measured at small strain) is extrapolated; lower Ca (--ca) or the load if that matters")
+        strain_why = "its neo-Hookean law is extrapolated beyond the small strains its moduli describe"
+    else:
+        grad_why = ("the small-strain path (--kinematics small) neglects geometric terms of this relative size; "
+                    "use --kinematics finite, or lower Ca (--ca) or the load")
+        strain_why = ("the gel that loads it is modelled in small deformation; use --kinematics finite, or lower "
+                      "Ca (--ca) or the load")
+    out = []
+    if _exceeds(grad, grad_limit):
+        out.append(f"the gel's largest displacement gradient is {grad:.3g} (> {grad_limit:g}): {grad_why}")
+    if _exceeds(strain, MAX_CELL_STRAIN):
+        out.append(f"the cell's largest von Mises Green-Lagrange strain is {strain:.3g} (> {MAX_CELL_STRAIN:g}): "
+                   f"{strain_why}")
+    return out
