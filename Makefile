@@ -1,6 +1,7 @@
 # gelcell: two commands do everything on a fresh Debian 12 machine.
 #   make run   - install what is missing, run the shear-flow baseline with a cell
 #   make test  - install what is missing, run the test suite (serial + 2 MPI ranks)
+#   make lint  - the linter (ruff, installed into .venv; settings in pyproject.toml)
 #   make benchmark - performance tables (benchmarks/performance.py; BENCHMARK_ARGS="--sizes 1 0.5")
 
 VENV      := .venv
@@ -13,7 +14,7 @@ export OMPI_MCA_rmaps_base_oversubscribe := 1
 export OMPI_MCA_mpi_yield_when_idle := 1
 export MPLBACKEND := Agg
 
-.PHONY: all setup run test test-serial test-mpi benchmark clean
+.PHONY: all setup run test test-serial test-mpi lint benchmark clean
 
 all: test
 
@@ -34,6 +35,13 @@ run: setup
 test: setup
 	$(PY) -m pytest -q -ra --durations=15
 	./scripts/pytest-2-ranks
+
+RUFF      := $(VENV)/bin/ruff
+RUFF_VERSION := 0.17.6
+
+lint: setup
+	test -x $(RUFF) && $(RUFF) --version | grep -q " $(RUFF_VERSION)$$" || $(PY) -m pip install -q "ruff==$(RUFF_VERSION)"
+	$(RUFF) check .
 
 # performance tables of the shear baseline (timings printed, never asserted), then the timing tests
 benchmark: setup
