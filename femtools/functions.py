@@ -17,7 +17,7 @@ jitcache.install()
 #: the names ufl gives a (continuous) Lagrange family; a VectorElement reports its sub-element's
 LAGRANGE_FAMILIES = ("Lagrange", "P", "CG", "Q")
 
-__all__ = ["LAGRANGE_FAMILIES", "integrate", "gather_rows", "owned_values", "global_max", "interpolate",
+__all__ = ["LAGRANGE_FAMILIES", "integrate", "gather_owned_rows", "owned_values", "global_max", "interpolate",
            "set_function", "NodalAverage", "von_mises", "green_lagrange", "quadrature_measure"]
 
 
@@ -28,7 +28,7 @@ def integrate(expr, measure, comm: MPI.Comm | None = None) -> float:
     return comm.allreduce(fem.assemble_scalar(form), op=MPI.SUM)
 
 
-def gather_rows(comm: MPI.Comm, start: int, rows: np.ndarray, total: int, root: int = 0) -> np.ndarray | None:
+def gather_owned_rows(comm: MPI.Comm, start: int, rows: np.ndarray, total: int, root: int = 0) -> np.ndarray | None:
     """The rows ``rows`` of each rank, placed at its offset ``start`` in a ``total``-row array on ``root``.
 
     For owned entries of an index map (rank r owns the global indices

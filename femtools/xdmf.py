@@ -24,7 +24,7 @@ import numpy as np
 
 from dolfinx import fem, io
 
-from femtools.functions import LAGRANGE_FAMILIES, gather_rows
+from femtools.functions import LAGRANGE_FAMILIES, gather_owned_rows
 
 __all__ = ["NodalXDMF"]
 
@@ -114,7 +114,7 @@ class NodalXDMF:
     # -- writing ---------------------------------------------------------------
     def write(self, functions, t: float) -> None:
         """Append ``functions`` at time ``t`` (collective); the XML is rewritten whole."""
-        parts = [gather_rows(self.comm, self._start, self.nodal_values(f), self._n) for f in functions]
+        parts = [gather_owned_rows(self.comm, self._start, self.nodal_values(f), self._n) for f in functions]
         error = None
         if self.comm.rank == 0:
             try:

@@ -62,7 +62,7 @@ from dolfinx import fem
 from femtools.continuum import adjugate, cofactor, kinematics, surface_stretch
 from femtools.linalg import NewtonSolver, jacobian_at_rest
 from femtools.meshmotion import MeshMotion
-from femtools.serialize import CanonicalOrder, MixedCanonical
+from femtools.canonical import CanonicalOrder, MixedCanonical
 from fluid.solver import StokesSolver
 
 __all__ = ["ale_bulk_residual", "ale_robin_residual", "MovingStokesSolver"]
@@ -268,7 +268,7 @@ class MovingStokesSolver(StokesSolver):
         return self._canonical
 
     def checkpoint_state(self) -> dict[str, np.ndarray]:
-        """The state in the partition-independent order (``femtools.serialize``)."""
+        """The state in the partition-independent order (``femtools.canonical``)."""
         mixed, order = self._orders()
         state = {f"state_{k}": v for k, v in mixed.gather(self.w.x.array).items()}
         state["mesh"] = order.gather(self.mesh_displacement.x.array)

@@ -101,7 +101,7 @@ from femtools.interface import InterfaceNodes
 from femtools.linalg import NewtonSolver, assemble_residual_vector, gather_csr, jacobian_at_rest, \
     schur_complement
 from femtools.mesh import as_tags, tagged_facets
-from femtools.serialize import CanonicalOrder, MixedCanonical
+from femtools.canonical import CanonicalOrder, MixedCanonical
 from femtools.solver import FieldSolver
 from femtools.timestepping import RateHistory
 from gel import forms, lagrangian
@@ -621,7 +621,7 @@ class PoroelasticGelSolver(FieldSolver):
         return state
 
     def checkpoint_state(self) -> dict[str, np.ndarray]:
-        """The state in the partition-independent node order (``femtools.serialize``), same on every rank.
+        """The state in the partition-independent node order (``femtools.canonical``), same on every rank.
 
         A run restarted on another partition (or rank count) reads it back
         with :meth:`load_checkpoint_state`.

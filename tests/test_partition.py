@@ -18,7 +18,7 @@ from dolfinx import fem
 from dolfinx import mesh as dmesh
 
 from femtools.mesh import PARTITIONER
-from femtools.serialize import CanonicalOrder, MixedCanonical
+from femtools.canonical import CanonicalOrder, MixedCanonical
 from gelcell.geometry.meshes import build_meshes
 from gelcell.case import CaseParameters
 

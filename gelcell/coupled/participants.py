@@ -45,7 +45,7 @@ import numpy as np
 
 import coupling as cp
 from cell import NeoHookeanCellSolver
-from femtools.serialize import CanonicalOrder
+from femtools.canonical import CanonicalOrder
 from femtools.timestepping import WindowClock
 from fluid import StokesSolver
 from gel import PoroelasticGelSolver

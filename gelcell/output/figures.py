@@ -25,7 +25,7 @@ import numpy as np
 
 from dolfinx import fem
 
-from femtools.functions import gather_rows
+from femtools.functions import gather_owned_rows
 from gelcell.output.fields import DerivedFields
 from gelcell.post.fields import DeviceFields
 
@@ -167,7 +167,7 @@ class P1Gather:
         gidx = imap.local_to_global(np.arange(n_owned + imap.num_ghosts, dtype=np.int32))
         n_cells = msh.topology.index_map(2).size_local
         tri = gidx[Q.dofmap.list.array.reshape(-1, 3)[:n_cells]]
-        self.x = gather_rows(self.comm, self._start, x, self._n)
+        self.x = gather_owned_rows(self.comm, self._start, x, self._n)
         triangles = self.comm.gather(tri, root=0)
         self.triangles = np.vstack(triangles) if self.comm.rank == 0 else None
 
@@ -183,7 +183,7 @@ class P1Gather:
         g = fem.Function(Q)
         g.interpolate(f)
         bs = Q.dofmap.index_map_bs
-        V = gather_rows(self.comm, self._start, g.x.array.reshape(-1, bs)[:self._n_owned], self._n)
+        V = gather_owned_rows(self.comm, self._start, g.x.array.reshape(-1, bs)[:self._n_owned], self._n)
         if self.comm.rank != 0:
             return None
         return self.x, self.triangles, (V[:, 0] if bs == 1 else V)

@@ -17,7 +17,7 @@ from dolfinx import fem
 
 import coupling as cp
 from coupling.serialization import load_npz, save_npz
-from femtools.serialize import CanonicalOrder, MixedCanonical
+from femtools.canonical import CanonicalOrder, MixedCanonical
 from femtools.timestepping import WindowClock
 from femtools.transfer import NodalTransfer
 from gelcell.case import CaseParameters
@@ -159,7 +159,7 @@ class MonolithicBackend:
         return self._orders
 
     def save(self, path: str, extra) -> None:
-        """Partition-independent arrays (``femtools.serialize``) and the run's own state (rank 0's)."""
+        """Partition-independent arrays (``femtools.canonical``) and the run's own state (rank 0's)."""
         mixed, order_u = self._canonical()
         history = self.solver.history
         state = {"format": "gelcell-monolithic-checkpoint", "fields": mixed.gather(self.solver.w.x.array),

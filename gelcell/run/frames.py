@@ -12,7 +12,7 @@ import numpy as np
 
 from mpi4py import MPI
 
-from femtools.serialize import CanonicalOrder
+from femtools.canonical import CanonicalOrder
 from gelcell.post.fields import DeviceFields
 
 __all__ = ["FRAMES_DIR", "write_frame", "read_frame"]

@@ -34,7 +34,7 @@ import numpy as np
 
 from mpi4py import MPI
 
-from femtools.serialize import CanonicalOrder
+from femtools.canonical import CanonicalOrder
 from gelcell.case import CaseParameters, TimeSettings
 from gelcell.errors import ParameterError
 from gelcell.post.quantities import DeviceQuantities
