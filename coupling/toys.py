@@ -176,7 +176,7 @@ def series_bars_exact(segments: Sequence[tuple[float, float, float, float]]
     c = _series_bars_coefficients(segments)
 
     def locate(x: float) -> int:
-        for i, (a_i, b_i, _, _) in enumerate(segments):
+        for i, (_, b_i, _, _) in enumerate(segments):
             if x <= b_i + 1e-14:
                 return i
         return m - 1

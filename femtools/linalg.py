@@ -22,6 +22,9 @@ from petsc4py import PETSc
 
 import ufl
 from dolfinx import fem
+
+if typing.TYPE_CHECKING:
+    import scipy.sparse
 from dolfinx.fem import petsc as fem_petsc
 
 from femtools.errors import NewtonError, SingularSystemError

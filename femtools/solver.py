@@ -99,6 +99,6 @@ class FieldSolver(abc.ABC):
         try:
             self._solve()
         except SingularSystemError as exc:
-            raise exc.add_hint(self.singular_hint)
+            raise exc.add_hint(self.singular_hint) from None
         self.timing["solve"] += time.perf_counter() - t0
         self.timing["solves"] += 1

@@ -421,7 +421,10 @@ class StokesSolver(FieldSolver):
     def _component_bc(self, tags, c, value) -> fem.DirichletBCMetaClass:
         Vc = self._Vc[c][0]
         if callable(value):     # a scalar space: (n,) values
-            value = (lambda x, f=value: np.asarray(f(x), dtype=float).reshape(-1))
+            given = value
+
+            def value(x):
+                return np.asarray(given(x), dtype=float).reshape(-1)
         g = set_function(fem.Function(Vc), value, f"{self.name}: component_bcs value for tags {tags}")
         self._boundary_values.append((g, g.x.array.copy()))
         dofs = fem.locate_dofs_topological((self.W.sub(0).sub(c), Vc), self._fdim, self._facets(tags))

@@ -17,7 +17,7 @@ import tomllib
 
 import pytest
 
-from gelcell.case import CaseParameters, load_run_config, resolve
+from gelcell.case import CaseParameters, resolve
 from gelcell.case.casefile import toml_text
 from gelcell.cli.commands import run_config
 from gelcell.cli.parser import OPTION_KEYS, build_parser

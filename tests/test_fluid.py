@@ -244,16 +244,16 @@ def test_normal_robin_pressure_level():
     solver.set_interface_data("out", robin_normal=np.tile(g_out, (n_out, 1)))
     gn_in, gn_out = -g_in[0], g_out[0]
     # the second pass changes a_in through set_robin_coefficients (one more factorisation)
-    for a_in in (a_in, 5.0):
-        if a_in != 2.0:
-            solver.set_robin_coefficients("in", alpha_n=a_in)
+    for alpha in (a_in, 5.0):
+        if alpha != 2.0:
+            solver.set_robin_coefficients("in", alpha_n=alpha)
         solver.solve()
-        U = (gn_out - gn_in) / (a_in + a_out)
-        P = -gn_in - a_in * U
-        eu = max_nodal_error(solver.velocity, lambda X: np.column_stack((np.full(len(X), U), 0 * X[:, 0])))
-        ep = max_nodal_error(solver.pressure, lambda X: np.full(len(X), P))
-        assert eu < 1e-10 * abs(U), f"a_in = {a_in}, U = {U}: velocity error {eu:.3e}"
-        assert ep < 1e-10 * abs(P), f"a_in = {a_in}, P = {P}: pressure error {ep:.3e}"
+        U = (gn_out - gn_in) / (alpha + a_out)
+        P = -gn_in - alpha * U
+        eu = max_nodal_error(solver.velocity, lambda X, U=U: np.column_stack((np.full(len(X), U), 0 * X[:, 0])))
+        ep = max_nodal_error(solver.pressure, lambda X, P=P: np.full(len(X), P))
+        assert eu < 1e-10 * abs(U), f"a_in = {alpha}, U = {U}: velocity error {eu:.3e}"
+        assert ep < 1e-10 * abs(P), f"a_in = {alpha}, P = {P}: pressure error {ep:.3e}"
         # consistent traction on the outlet: t.n = -P (its y component is pinned at the walls)
         tr = solver.interface_data("out")["traction"]
         assert np.allclose(tr[:, 0], -P, rtol=1e-10), "outlet traction t_x = -P"

@@ -340,7 +340,10 @@ def _mms_errors(prm, amp, N):
                                           (RIGHT, "v_f", lambda X: _exact(X, np, amp)[0][1], 1)],
                                body_forces=(f_w, f_z, f_q))
     nvec = ufl.as_vector((1.0, 0.0))
-    snn = lambda s: ufl.dot(ufl.dot(s, nvec), nvec)
+
+    def snn(s):
+        return ufl.dot(ufl.dot(s, nvec), nvec)
+
     V_n = v[0] + phi_f * c.eta * (snn(sf) - snn(forms.network_stress(u, c))) / c.viscosity
     V2 = fem.VectorFunctionSpace(msh, ("Lagrange", 2))
     nodes = InterfaceNodes(V2, ft, RIGHT)

@@ -230,7 +230,8 @@ def test_interface_mass_is_the_restricted_mass_matrix():
     # several right-hand sides at once: the same as one by one
     columns = np.column_stack([R.ravel(), 2.0 * R.ravel() + L.ravel()])
     expected = np.column_stack([pinned_mass.solve(c.reshape(R.shape)).ravel() for c in columns.T])
-    np.testing.assert_allclose(pinned_mass.solve_columns(columns), expected, rtol=0, atol=1e-14 * np.abs(expected).max())
+    np.testing.assert_allclose(pinned_mass.solve_columns(columns), expected, rtol=0,
+                               atol=1e-14 * np.abs(expected).max())
 
 
 # -- MUMPS controls ----------------------------------------------------------------------------

@@ -235,7 +235,8 @@ def test_a_warm_run_does_not_import_gmsh(tmp_path):
         import sys
         from gelcell.cli import main
         code = main(["run", "shear", "--mesh-size", "3", "--no-figures", "--quiet", "--out", {str(tmp_path / "out")!r}])
-        print("IMPORTED", sorted(m for m in ("gmsh", "gelcell.geometry.builtin_model", "dolfinx.io.gmshio") if m in sys.modules))
+        names = ("gmsh", "gelcell.geometry.builtin_model", "dolfinx.io.gmshio")
+        print("IMPORTED", sorted(m for m in names if m in sys.modules))
         sys.exit(code)
     """)
     env = dict(os.environ, MPLBACKEND="Agg", GELCELL_CACHE_DIR=str(tmp_path / "meshes"))

@@ -15,7 +15,6 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from mpi4py import MPI
 from petsc4py import PETSc
