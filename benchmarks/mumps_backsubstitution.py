@@ -7,7 +7,7 @@ Factorises the 5-point Laplacian of an n x n grid (LDL^T, the settings of
 ``femtools.linalg.DirectSolver``: MUMPS's own ordering, distributed right-hand side on
 several ranks) and prints the factorisation time, the number of entries in
 the factors and the mean time of one back-substitution.  Timings are printed,
-never asserted.  On the development machine (README "Performance") a
+never asserted.  On the development machine (docs/performance.md) a
 back-substitution gains little from a second rank, unlike the assembly.
 """
 

@@ -1,6 +1,6 @@
 """Coupling-scheme comparison study (the same as ``gelcell study``).
 
-    .venv/bin/python examples/coupling_study.py --quick --out results/study-quick --update-readme README.md
+    .venv/bin/python examples/coupling_study.py --quick --out results/study-quick --update-table docs/coupling-study.md
     .venv/bin/python examples/coupling_study.py --out results/study            # the full study (a benchmark)
 """
 

@@ -89,7 +89,7 @@ def test_steady_runs_factorise_with_the_amf_ordering(runs):
 
 
 def test_time_dependent_devices_keep_mumps_automatic_ordering():
-    """~1000 back-substitutions per factorisation: the automatic choice's trees solve faster (README)."""
+    """~1000 back-substitutions per factorisation: the automatic choice's trees solve faster (docs/performance.md)."""
     from femtools.linalg import DEFAULT_ORDERING
     from gelcell.coupled.device import Device
     device = Device(_params("shear"), transient=True)

@@ -103,7 +103,7 @@ def test_interrupted_run_resumes_to_the_same_result(shared_tmp_path, settings, c
     the extrapolation history, the gel's displacement history and the step
     controller's state.  The two runs agree to round-off, not bit for bit:
     under MPI MUMPS schedules its parallel factorisation dynamically, and in
-    serial an optimised BLAS (OpenBLAS, README "Stack") rounds differently
+    serial an optimised BLAS (OpenBLAS, docs/stack.md) rounds differently
     when the same data sit elsewhere in memory; each coupling iteration's
     result then moves within the coupling tolerance (measured ~3e-11 in serial,
     ~2e-11 between two MPI runs).  So the quantities are compared to 1e-9, the

@@ -199,15 +199,15 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 def cmd_study(args: argparse.Namespace) -> int:
     if args.max_iterations < 1:
         raise ParameterError(f"--max-iterations = {args.max_iterations} must be at least 1")
-    from gelcell.run.study import markdown_table, run_study, study_cases, study_mesh_size, update_readme
+    from gelcell.run.study import markdown_table, run_study, study_cases, study_mesh_size, update_study_table
     mesh_size = study_mesh_size(args.quick, args.mesh_size)
     _check_before_meshing([c.parameters(mesh_size) for c in study_cases(args.quick)], args.out)
     study = run_study(args.out, quick=args.quick, mesh_size=mesh_size, max_iterations=args.max_iterations)
     if MPI.COMM_WORLD.rank == 0:
         print(study["table"])
-        if args.update_readme:
-            update_readme(args.update_readme, markdown_table(study["records"], study["monolithic"]))
-            print(f"updated the coupling-study table in {args.update_readme}")
+        if args.update_table:
+            update_study_table(args.update_table, markdown_table(study["records"], study["monolithic"]))
+            print(f"updated the coupling-study table in {args.update_table}")
     return 0
 
 

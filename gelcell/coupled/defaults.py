@@ -32,7 +32,7 @@ AUTO_PRIOR_MAX_UNKNOWNS = 4000
 #: MUMPS options of a steady run's field solvers: the AMF ordering (ICNTL(7) = 2).  Its analyses
 #: are faster than the automatic choice's (PORD for some matrices), its back-substitutions a few
 #: per cent slower: a steady run factorises each operator once and back-substitutes ~5-20 times,
-#: a time-dependent one ~1000 times, and keeps the automatic choice (README "Performance")
+#: a time-dependent one ~1000 times, and keeps the automatic choice (docs/performance.md)
 STEADY_SOLVER_OPTIONS = {"mat_mumps_icntl_7": 2}
 
 

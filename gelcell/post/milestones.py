@@ -27,7 +27,7 @@ def _crossing(t: np.ndarray, x: np.ndarray, level: float) -> float | None:
 
 
 def transient_summary(state: dict, params: CaseParameters, settings: TimeSettings, plan: dict) -> dict:
-    """The ``transient`` block of summary.json (see the README)."""
+    """The ``transient`` block of summary.json (docs/output.md)."""
     rows = state["rows"]
     t = np.array([r["t"] for r in rows])
     key = "centroid_x" if params.with_cell else "max_network_displacement"
