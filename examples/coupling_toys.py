@@ -15,7 +15,7 @@
 #
 # Usage:
 #
-#     /work/main/.venv/bin/python examples/coupling_toys.py --json OUT.json
+#     .venv/bin/python examples/coupling_toys.py --json OUT.json
 #
 # writes a JSON list of records
 # `{problem, scheme, acceleration, converged, iterations, error, reason}` and
