@@ -126,3 +126,22 @@ def test_no_import_cycle():
 def test_the_cycle_finder_finds_cycles():
     assert _cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
     assert _cycle({"a": {"b"}, "b": {"c"}, "c": set()}) is None
+
+
+def _external_imports(path: pathlib.Path) -> set[str]:
+    """The top-level names of every module ``path`` imports."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            found |= {a.name.split(".")[0] for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            found.add(node.module.split(".")[0])
+    return found
+
+
+def test_the_case_layer_needs_no_finite_elements_and_no_gmsh():
+    """gelcell.case describes and validates a run: reading a case file never starts dolfinx or gmsh."""
+    heavy = {"dolfinx", "ufl", "basix", "petsc4py", "gmsh", "femtools", "fluid", "gel", "cell"}
+    bad = {str(p.relative_to(ROOT)): sorted(_external_imports(p) & heavy)
+           for p in (ROOT / "gelcell" / "case").rglob("*.py")}
+    assert not {k: v for k, v in bad.items() if v}
