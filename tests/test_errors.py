@@ -171,3 +171,49 @@ def test_compiler_lines_only_with_debug(tmp_path, debug):
     assert proc.returncode == 0, proc.stderr
     assert ("gcc" in proc.stderr) == debug, proc.stderr
     assert ("INFO" in proc.stderr) == debug
+
+
+# ------------------------------------------------------------------ issue 28: expected failures, bounded reads
+MARKERLESS = "# a document\nno coupling-study markers here\n"
+
+
+def _inputs(tmp_path) -> dict:
+    """Hostile and unlucky input files of the issue-28 tests, by name."""
+    files = {"binary.toml": b"\x00\x01\xff\xfe binary", "utf16.toml": "[mesh]\nsize_factor = 3\n".encode("utf-16"),
+             "binary.csv": b"\x00\x01\xff\xfe binary", "utf16.csv": "t,f\n0,1\n1,1\n".encode("utf-16"),
+             "order.toml": b'[case]\nname = "shear"\n[coupling]\norder = ["gel", "fluid"]\n',
+             "markerless.md": MARKERLESS.encode()}
+    for name, data in files.items():
+        (tmp_path / name).write_bytes(data)
+    return {name.replace(".", "_"): tmp_path / name for name in files}
+
+
+@serial_cli
+@pytest.mark.parametrize("args, code, words", [
+    (["run", "shear", "--config", "{binary_toml}"], 2, ["case file", "not UTF-8"]),
+    (["run", "shear", "--config", "{utf16_toml}"], 2, ["case file", "not UTF-8"]),
+    (["run", "shear", "--transient", "--inflow", "table:{binary_csv}"], 2, ["inflow", "not UTF-8"]),
+    (["run", "shear", "--transient", "--inflow", "table:{utf16_csv}"], 2, ["inflow", "not UTF-8"]),
+    (["run", "shear", "--config", "/dev/zero"], 2, ["/dev/zero", "not a regular file"]),
+    (["run", "shear", "--transient", "--inflow", "table:/dev/zero"], 2, ["inflow", "/dev/zero",
+                                                                         "not a regular file"]),
+], ids=["binary-case-file", "utf16-case-file", "binary-table", "utf16-table", "config-dev-zero", "table-dev-zero"])
+def test_issue28_refused_before_meshing(tmp_path, args, code, words):
+    """Items 10, 14, 15: one line and the exit code of the input's fault, before anything is meshed."""
+    files = _inputs(tmp_path)
+    proc = gelcell(*[a.format(**files) for a in args], "--out", "o", cwd=tmp_path)
+    assert proc.returncode == code, proc.stderr
+    line = error_line(proc, args[0])
+    for word in words:
+        assert word in line, line
+    assert proc.stdout == "" and not (tmp_path / "o").exists()
+    assert (tmp_path / "markerless.md").read_text() == MARKERLESS
+
+
+def test_the_inflow_table_is_bounded(tmp_path, monkeypatch):
+    from gelcell.case import inflow
+    big = tmp_path / "big.csv"
+    big.write_text("t,f\n0,1\n1,1\n")
+    monkeypatch.setattr(inflow, "MAX_TABLE_BYTES", 8)
+    with pytest.raises(ParameterError, match="more than the 8 allowed"):
+        inflow.parse_inflow(f"table:{big}")

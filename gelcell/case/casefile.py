@@ -1,7 +1,8 @@
 """Case files: TOML read with bounds, and written back (``DIR/case.toml``) so that a run can be repeated.
 
 :func:`read_case_file` refuses what is not a small regular UTF-8 TOML file
-with one :class:`~gelcell.errors.ParameterError` naming the file;
+with one :class:`~gelcell.errors.ParameterError` naming the file (the bytes
+are read by :func:`read_bounded`, which the inflow tables share);
 :func:`toml_text` writes nested tables of strings, numbers, booleans and
 lists (a ``None`` value is left out: TOML has none), which ``tomllib``
 reads back to the same values (floats are written with ``repr``, exact).
@@ -19,14 +20,14 @@ import typing
 
 from gelcell.errors import ParameterError
 
-__all__ = ["read_case_file", "toml_text", "MAX_CASE_FILE_BYTES"]
+__all__ = ["read_case_file", "read_bounded", "toml_text", "MAX_CASE_FILE_BYTES"]
 
 #: a case file is a few kB; anything larger is not one
 MAX_CASE_FILE_BYTES = 1 << 20
 _BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
 
 
-def _read_bounded(path: str, what: str, limit: int) -> bytes:
+def read_bounded(path: str, what: str, limit: int) -> bytes:
     """The bytes of a regular file of at most ``limit`` bytes; ParameterError otherwise."""
     try:
         info = os.stat(path)
@@ -35,21 +36,21 @@ def _read_bounded(path: str, what: str, limit: int) -> bytes:
     if not stat.S_ISREG(info.st_mode):
         raise ParameterError(f"{what} {path!r} is not a regular file")
     if info.st_size > limit:
-        raise ParameterError(f"{what} {path!r} has {info.st_size} bytes; a {what} has at most {limit}")
+        raise ParameterError(f"{what} {path!r} has {info.st_size} bytes, more than the {limit} allowed")
     try:
         with open(path, "rb") as f:
             data = f.read(limit + 1)
     except OSError as exc:
         raise ParameterError(f"cannot read {what} {path!r}: {exc.strerror}") from None
     if len(data) > limit:
-        raise ParameterError(f"{what} {path!r} has more than {limit} bytes")
+        raise ParameterError(f"{what} {path!r} has more than the {limit} bytes allowed")
     return data
 
 
 def read_case_file(path: str | os.PathLike) -> dict:
     """The tables of a TOML case file (a regular UTF-8 file of at most :data:`MAX_CASE_FILE_BYTES`)."""
     path = os.fspath(path)
-    data = _read_bounded(path, "case file", MAX_CASE_FILE_BYTES)
+    data = read_bounded(path, "case file", MAX_CASE_FILE_BYTES)
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -8,6 +8,7 @@ times are in the paper's time unit L0/V0, like ``dt`` and ``t_end``:
     sine:MEAN,AMP,PERIOD    f = MEAN + AMP sin(2 pi t / PERIOD)
     square:ON,OFF           f = 1 for ON, then 0 for OFF, repeated (on first)
     table:FILE.csv          (t, f) rows, linear in between, constant beyond the ends
+                            (a regular UTF-8 CSV file of at most MAX_TABLE_BYTES)
 
 Every spec is parsed and checked (:func:`parse_inflow`) before anything is
 meshed: a bad spec raises :class:`~gelcell.errors.ParameterError` naming
@@ -23,11 +24,14 @@ import os
 
 import numpy as np
 
+from gelcell.case.casefile import read_bounded
 from gelcell.errors import ParameterError
 
-__all__ = ["Waveform", "parse_inflow", "WAVEFORMS"]
+__all__ = ["Waveform", "parse_inflow", "WAVEFORMS", "MAX_TABLE_BYTES"]
 
 WAVEFORMS = ("step", "ramp:T", "sine:MEAN,AMP,PERIOD", "square:ON,OFF", "table:FILE.csv")
+#: a table of (t, f) rows is at most a few hundred kB (8 MiB: some 300 000 rows); anything larger is not one
+MAX_TABLE_BYTES = 8 << 20
 
 
 @dataclasses.dataclass(frozen=True)
@@ -120,10 +124,16 @@ def _numbers(spec: str, text: str, count: int) -> tuple[float, ...]:
 def _read_table(spec: str, path: str, base_dir: str | None) -> tuple[tuple[float, ...], tuple[float, ...]]:
     full = path if os.path.isabs(path) or base_dir is None else os.path.join(base_dir, path)
     try:
-        with open(full, newline="") as fh:
-            rows = [r for r in csv.reader(fh) if r and not r[0].lstrip().startswith("#")]
-    except OSError as exc:
-        raise _bad(spec, f"cannot read the table {full!r} ({exc.strerror})") from None
+        data = read_bounded(full, "inflow table", MAX_TABLE_BYTES)
+    except ParameterError as exc:
+        raise _bad(spec, str(exc)) from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise _bad(spec, f"the table {full!r} is not UTF-8 text (byte {exc.start}): a table is CSV text") from None
+    if "\x00" in text:
+        raise _bad(spec, f"the table {full!r} holds NUL bytes: a table is CSV text")
+    rows = [r for r in csv.reader(text.splitlines()) if r and not r[0].lstrip().startswith("#")]
     if rows:
         try:
             float(rows[0][0])
