@@ -241,7 +241,19 @@ def partitioned_config(params: CaseParameters, coupling: typing.Mapping | None =
     config = coupling_config(scheme, kind, with_cell=params.with_cell, overrides=table, transient=transient,
                              params=params, gamma2=gamma2)
     try:
-        cp.load_config(config)
+        loaded = cp.load_config(config)
     except ValueError as exc:
         raise ParameterError(f"the [coupling] table is invalid: {exc}") from None
+    _check_order(loaded.order, params.with_cell)
     return config
+
+
+def _check_order(order: typing.Sequence[str], with_cell: bool) -> None:
+    """``[coupling] order``, if given, names each participant of the device once (ParameterError if not)."""
+    names = ["fluid", "gel", "cell"] if with_cell else ["fluid", "gel"]
+    if order and sorted(order) != sorted(names):
+        unknown = [o for o in order if o not in names]
+        missing = [n for n in names if n not in order]
+        why = (f"names unknown participants {unknown}" if unknown else f"misses participants {missing}")
+        raise ParameterError(f"the [coupling] table is invalid: coupling.order = {list(order)!r} {why}; "
+                             f"give every participant of this device once: {names}")
