@@ -199,7 +199,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 def cmd_study(args: argparse.Namespace) -> int:
     if args.max_iterations < 1:
         raise ParameterError(f"--max-iterations = {args.max_iterations} must be at least 1")
-    from gelcell.run.study import markdown_table, run_study, study_cases, study_mesh_size, update_study_table
+    from gelcell.run.study import (check_study_table, markdown_table, run_study, study_cases, study_mesh_size,
+                                   update_study_table)
+    if args.update_table:
+        check_study_table(args.update_table)          # before the study runs, not after it
     mesh_size = study_mesh_size(args.quick, args.mesh_size)
     _check_before_meshing([c.parameters(mesh_size) for c in study_cases(args.quick)], args.out)
     study = run_study(args.out, quick=args.quick, mesh_size=mesh_size, max_iterations=args.max_iterations)
