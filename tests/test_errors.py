@@ -199,7 +199,9 @@ def _inputs(tmp_path) -> dict:
     (["run", "shear", "--config", "/dev/zero"], 2, ["/dev/zero", "not a regular file"]),
     (["run", "shear", "--transient", "--inflow", "table:/dev/zero"], 2, ["inflow", "/dev/zero",
                                                                          "not a regular file"]),
-], ids=["binary-case-file", "utf16-case-file", "binary-table", "utf16-table", "coupling-order", "update-table-markers", "config-dev-zero", "table-dev-zero"])
+    (["run", "shear", "--gel-moduli", "1e-12"], 4, ["1e+12 times as stiff as the gel", "[1e-06, 1e+06]"]),
+    (["run", "shear", "--cell-moduli", "1e9"], 4, ["1e+09 times as stiff as the gel", "[1e-06, 1e+06]"]),
+], ids=["binary-case-file", "utf16-case-file", "binary-table", "utf16-table", "coupling-order", "update-table-markers", "config-dev-zero", "table-dev-zero", "gel-moduli-tiny", "cell-moduli-huge"])
 def test_issue28_refused_before_meshing(tmp_path, args, code, words):
     """Items 10, 14, 15: one line and the exit code of the input's fault, before anything is meshed."""
     files = _inputs(tmp_path)

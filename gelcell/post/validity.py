@@ -3,6 +3,8 @@
 Before solving (:func:`check_case`, raising :class:`ModelLimitError`):
 
 * the scaled problem must be representable in float64 (:func:`representable_ca`);
+* the cell's stiffness must be within :data:`STIFFNESS_RATIO_RANGE` of the gel's
+  (:func:`check_stiffness_ratio`);
 * the mesh must fit in this machine's memory (:func:`estimate_mesh`), estimated
   from the element sizes and the closed-form areas and lengths, before gmsh runs.
 
@@ -31,7 +33,8 @@ from gelcell.errors import ModelLimitError
 from gelcell.geometry import Tag, described
 from gelcell.geometry.builtin import closed_form_measures
 
-__all__ = ["representable_ca", "check_representable", "estimate_mesh", "check_mesh_size", "check_case",
+__all__ = ["representable_ca", "check_representable", "check_stiffness_ratio", "STIFFNESS_RATIO_RANGE",
+           "estimate_mesh", "check_mesh_size", "check_case",
            "machine_memory", "model_warnings", "MAX_DISPLACEMENT_GRADIENT", "MAX_CELL_STRAIN", "MAX_NEGLECTED"]
 
 # --------------------------------------------------------------------------- representable Ca
@@ -71,6 +74,27 @@ def check_representable(params: CaseParameters) -> None:
             f"Ca = {ca:g} cannot be represented: the solvers work in units of Ca (stress Ca mu_s, "
             f"displacement Ca L0) and square Ca-sized quantities, which float64 holds only for "
             f"Ca in [{lo:.1e}, {hi:.1e}]; choose --ca (or --gel-moduli, which divides Ca) in that range")
+
+
+# --------------------------------------------------------------------------- stiffness ratio
+#: The cell's shear modulus in multiples of the gel's drained modulus, mu_c / (phi_s0 mu_s), that the
+#: solvers answer.  The paper's cells are within a factor 10 of the gel; at 1e6 the partitioned
+#: coupling already needs its 200 iterations (shear device, --mesh-size 3), beyond it the gel's
+#: Newton iteration fails (1e7, 1e9) and its systems lose their pivots (1e12).
+STIFFNESS_RATIO_RANGE = (1e-6, 1e6)
+
+
+def check_stiffness_ratio(params: CaseParameters) -> None:
+    """Raise :class:`ModelLimitError` if the cell is far stiffer or softer than the gel (before meshing)."""
+    if not params.with_cell:
+        return
+    lo, hi = STIFFNESS_RATIO_RANGE
+    ratio = params.cell_moduli_multiple
+    if not lo <= ratio <= hi:
+        raise ModelLimitError(
+            f"the cell is {ratio:.3g} times as stiff as the gel (mu_c / (phi_s0 mu_s), set by --cell-moduli, "
+            f"and divided by --gel-moduli): far outside the model's range, which solves stiffness ratios in "
+            f"[{lo:g}, {hi:g}]; choose --cell-moduli and --gel-moduli so that their ratio is in that range")
 
 
 # --------------------------------------------------------------------------- mesh size
@@ -162,6 +186,7 @@ def check_case(params: CaseParameters) -> None:
     """Every check that must pass before a case is meshed or solved (a geometry file is read and checked)."""
     described(params)
     check_representable(params)
+    check_stiffness_ratio(params)
     if params.case != "file":        # a geometry file's mesh size is the file's: no closed-form estimate
         check_mesh_size(params)
 
