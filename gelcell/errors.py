@@ -11,7 +11,7 @@ by exception type (:data:`EXIT_CODES`, first match wins):
 | 1 | internal error (a bug: rerun with --debug and report it) |
 | 2 | bad parameters, case file, ``[coupling]`` table or command-line option (``ParameterError``) |
 | 3 | output directory refused or not writable (``OutputError``) |
-| 4 | model limits: Ca not representable, mesh too large for this machine (``ModelLimitError``) |
+| 4 | model limits: Ca, cell/gel stiffness ratio, mesh too large, ``time.max_windows`` reached (``ModelLimitError``) |
 | 5 | coupling diverged (``CouplingDivergedError``) |
 | 6 | coupling did not converge in ``max_iterations`` (``CouplingNotConvergedError``) |
 | 7 | singular system: a boundary condition is missing (``SingularSystemError``) |

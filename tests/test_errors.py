@@ -221,3 +221,15 @@ def test_the_inflow_table_is_bounded(tmp_path, monkeypatch):
     monkeypatch.setattr(inflow, "MAX_TABLE_BYTES", 8)
     with pytest.raises(ParameterError, match="more than the 8 allowed"):
         inflow.parse_inflow(f"table:{big}")
+
+
+@serial_cli
+def test_issue28_max_windows_reached(tmp_path):
+    """Item 10: the run's window budget is a limit of the run (4), not an internal error."""
+    (tmp_path / "case.toml").write_text('[case]\nname = "shear"\n[time]\ntransient = true\nmax_windows = 1\n')
+    proc = gelcell("run", "--config", "case.toml", "--mesh-size", "3", "--no-figures", "--quiet", "--out", "o",
+                   cwd=tmp_path)
+    assert proc.returncode == 4, proc.stderr
+    line = error_line(proc, "run")
+    assert "1 windows (time.max_windows) reached" in line and "raise max_windows" in line
+    assert not (tmp_path / "o").exists()

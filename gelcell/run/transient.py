@@ -36,7 +36,7 @@ from mpi4py import MPI
 
 from femtools.canonical import CanonicalOrder
 from gelcell.case import CaseParameters, TimeSettings
-from gelcell.errors import ParameterError
+from gelcell.errors import ModelLimitError, ParameterError
 from gelcell.post.quantities import DeviceQuantities
 from gelcell.run.backends import WindowOutcome
 from gelcell.run.frames import FRAMES_DIR, write_frame
@@ -224,9 +224,10 @@ class TransientRun:
             self._start()
         while not self._done():
             if st["windows"] >= settings.max_windows:
-                raise RuntimeError(f"time-dependent run: {settings.max_windows} windows (time.max_windows) "
-                                   f"reached at t = {st['t']:.6g} before "
-                                   f"{'steady state' if self.plan['t_end'] is None else 't_end'}")
+                goal = "steady state" if self.plan["t_end"] is None else "t_end"
+                raise ModelLimitError(f"time-dependent run: {settings.max_windows} windows (time.max_windows) "
+                                      f"reached at t = {st['t']:.6g} before {goal}: raise max_windows in the "
+                                      f"[time] table of a --config file, or give a larger --dt or a --t-end")
             dt, t = self._next_dt(), st["t"]
             snapshot = self.backend.snapshot() if settings.adaptive else None
             outcome = self.backend.window(t, dt)
