@@ -223,6 +223,36 @@ def test_the_inflow_table_is_bounded(tmp_path, monkeypatch):
         inflow.parse_inflow(f"table:{big}")
 
 
+def _interrupted_run(out, checkpoint: bytes | None = None, ranks: int | None = None) -> None:
+    """``out.partial/`` as an interrupted time-dependent run leaves it, with the given checkpoint."""
+    from coupling.serialization import save_npz
+    partial = out.parent / f"{out.name}.partial"
+    partial.mkdir()
+    (partial / "case.toml").write_text('[case]\nname = "shear"\n[mesh]\nsize_factor = 3.0\n[time]\n'
+                                       'transient = true\n')
+    if checkpoint is not None:
+        (partial / "checkpoint.npz").write_bytes(checkpoint)
+    else:
+        save_npz(partial / "checkpoint.npz", {"format": "coupling-checkpoint", "ranks": ranks})
+
+
+@serial_cli
+@pytest.mark.parametrize("kind, words", [
+    ("truncated", ["cannot be read", "damaged or truncated"]),
+    ("two-ranks", ["written on 2 MPI rank(s)", "mpirun -n 2", "this run has 1"]),
+])
+def test_issue28_resume_refuses_a_checkpoint_it_cannot_use(tmp_path, kind, words):
+    """Item 10: a truncated checkpoint, or one of another rank count, is bad input (2), before meshing."""
+    out = tmp_path / "run"
+    _interrupted_run(out, checkpoint=b"PK\x03\x04 truncated" if kind == "truncated" else None, ranks=2)
+    proc = gelcell("run", "--resume", str(out), "--no-figures", "--quiet", cwd=tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    line = error_line(proc, "run")
+    for word in words:
+        assert word in line, line
+    assert proc.stdout == "" and not out.exists()
+
+
 @serial_cli
 def test_issue28_max_windows_reached(tmp_path):
     """Item 10: the run's window budget is a limit of the run (4), not an internal error."""

@@ -159,7 +159,7 @@ def _resumed_groups(args: argparse.Namespace, keys: dict) -> list[str]:
 
 def cmd_resume(args: argparse.Namespace) -> int:
     """``gelcell run [options] --resume DIR``: the configuration comes from DIR.partial/case.toml."""
-    from gelcell.run.resume import check_resume, read_interrupted
+    from gelcell.run.resume import check_checkpoint, check_resume, read_interrupted
     from gelcell.run.transient_case import run_transient_case
     if args.out is not None and os.path.abspath(args.out) != os.path.abspath(args.resume):
         raise ParameterError(f"--resume {args.resume} continues the run whose --out was {args.resume}; "
@@ -179,6 +179,7 @@ def cmd_resume(args: argparse.Namespace) -> int:
             given = resolve({t: tables[t] for t in CASE_TABLES if t in tables}, keys, source=source)
         check_resume(stored, given, groups, args.resume)
     config = resolve(tables, {k: v for k, v in keys.items() if k.startswith("output.")}, source=source)
+    check_checkpoint(args.resume, MPI.COMM_WORLD)
     _check_before_meshing([config.case], args.resume, partial=True)
     run_transient_case(config, args.resume, comm=MPI.COMM_WORLD, resume=True)
     return 0

@@ -13,14 +13,18 @@ from __future__ import annotations
 import json
 import os
 import typing
+import zipfile
+
+from mpi4py import MPI
 
 from gelcell.case import RunConfig
 from gelcell.case.casefile import read_case_file
 from gelcell.case.parameters import CASE_TABLES
+from coupling.serialization import load_npz
 from gelcell.coupled.defaults import partitioned_config
 from gelcell.errors import ParameterError
 
-__all__ = ["RUN_CONFIG", "CHECKPOINT", "read_interrupted", "check_resume", "method_tables"]
+__all__ = ["RUN_CONFIG", "CHECKPOINT", "read_interrupted", "check_checkpoint", "check_resume", "method_tables"]
 
 #: the configuration of the run in ``DIR.partial/`` (and, once it is done, in ``DIR/``)
 RUN_CONFIG = "case.toml"
@@ -37,6 +41,31 @@ def read_interrupted(out: str) -> dict:
         raise ParameterError(f"--resume {out}: nothing to resume, {partial}/ holds no checkpoint of an "
                              f"interrupted time-dependent run")
     return read_case_file(path)
+
+
+def _checkpoint_problem(out: str, path: str, ranks: int) -> str | None:
+    try:
+        state = load_npz(path)
+    except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile) as exc:
+        return (f"--resume {out}: the checkpoint {path} cannot be read ({type(exc).__name__}: {exc}): it is "
+                f"damaged or truncated; remove {os.path.dirname(path)}/ and run again without --resume")
+    if not isinstance(state, dict) or "format" not in state:
+        return f"--resume {out}: {path} is not a checkpoint of a gelcell run"
+    saved = state.get("ranks")
+    if saved is not None and int(saved) != ranks:
+        return (f"--resume {out}: the checkpoint was written on {int(saved)} MPI rank(s) and can only be resumed "
+                f"on as many (mpirun -n {int(saved)} gelcell run --resume {out}); this run has {ranks}")
+    return None
+
+
+def check_checkpoint(out: str, comm: MPI.Comm = MPI.COMM_WORLD) -> None:
+    """Raise ParameterError (on every rank) if the checkpoint of ``out`` cannot be resumed on ``comm``:
+    unreadable or truncated, or written on another number of ranks (before anything is meshed)."""
+    path = os.path.join(os.path.abspath(out) + ".partial", CHECKPOINT)
+    problem = _checkpoint_problem(out, path, comm.size) if comm.rank == 0 else None
+    problem = comm.bcast(problem, root=0)
+    if problem is not None:
+        raise ParameterError(problem)
 
 
 def method_tables(config: RunConfig) -> dict:

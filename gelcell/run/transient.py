@@ -29,6 +29,7 @@ from __future__ import annotations
 import math
 import os
 import time
+import zipfile
 
 import numpy as np
 
@@ -86,7 +87,11 @@ class TransientRun:
 
     def resume(self) -> None:
         """Continue from the checkpoint in ``work_dir`` (same case, settings and rank count)."""
-        extra = self.backend.load(self.checkpoint_path)
+        try:
+            extra = self.backend.load(self.checkpoint_path)
+        except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile) as exc:
+            raise ParameterError(f"{self.checkpoint_path}: the checkpoint cannot be resumed "
+                                 f"({type(exc).__name__}: {exc})") from None
         if not isinstance(extra, dict) or "rows" not in extra:
             raise ParameterError(f"{self.checkpoint_path}: no time-dependent run state in the checkpoint")
         self.state = extra
