@@ -12,17 +12,69 @@ whose compilation has finished (FFCx's ``<name>.c.cached`` marker exists) is
 loaded from ``<name><extension suffix>`` directly; anything else (a first
 compilation, a compilation in progress in another process, a marker without
 its library) goes to FFCx's own function, unchanged.
+
+:func:`install` also makes sure that dolfinx's default cache directory
+(``$XDG_CACHE_HOME/fenics``, else ``~/.cache/fenics``) can be written: if
+it cannot (``XDG_CACHE_HOME`` names a file, a read-only mount, ...), the
+forms are compiled into ``$TMPDIR/gelcell-fenics-<uid>`` (or a fresh
+temporary directory) instead, with one warning; a run never fails on it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import importlib.machinery
 import importlib.util
+import logging
 import os
+import stat
+import tempfile
 
-__all__ = ["install", "installed"]
+__all__ = ["install", "installed", "writable_directory"]
 
 _ORIGINAL = "_gelcell_original_get_cached_module"
+_log = logging.getLogger(__name__)
+
+
+def writable_directory(path: str) -> bool:
+    """Whether ``path`` is (or can be made) a directory that this process can create files in."""
+    try:
+        os.makedirs(path, exist_ok=True)
+        fd, probe = tempfile.mkstemp(dir=path, prefix=".probe-")
+        os.close(fd)
+        os.remove(probe)
+    except OSError:
+        return False
+    return True
+
+
+def _private_fallback() -> str:
+    """``$TMPDIR/gelcell-fenics-<uid>`` if it is this user's own directory, else a new temporary one."""
+    path = os.path.join(tempfile.gettempdir(), f"gelcell-fenics-{os.getuid()}")
+    with contextlib.suppress(OSError):
+        os.mkdir(path, 0o700)
+    with contextlib.suppress(OSError):
+        info = os.lstat(path)
+        if stat.S_ISDIR(info.st_mode) and info.st_uid == os.getuid() and writable_directory(path):
+            return path
+    return tempfile.mkdtemp(prefix="gelcell-fenics-")
+
+
+def _usable_cache_dir() -> None:
+    """Point dolfinx's default JIT cache at a writable directory (see the module docstring)."""
+    try:
+        from dolfinx import jit as dolfinx_jit
+    except ImportError:
+        return
+    default = getattr(dolfinx_jit, "DOLFINX_DEFAULT_JIT_PARAMETERS", {}).get("cache_dir")
+    if not default or writable_directory(os.fspath(default[0])):
+        return
+    fallback = _private_fallback()
+    dolfinx_jit.DOLFINX_DEFAULT_JIT_PARAMETERS["cache_dir"] = (type(default[0])(fallback), *default[1:])
+    from mpi4py import MPI
+    if MPI.COMM_WORLD.rank == 0:
+        _log.warning("the form compiler's cache %s cannot be written (check XDG_CACHE_HOME): compiling "
+                     "into %s instead", default[0], fallback)
 
 
 def _load(path: str, module_name: str, object_names):
@@ -54,6 +106,7 @@ def install() -> bool:
         return False
     if hasattr(jit, _ORIGINAL):
         return True
+    _usable_cache_dir()
 
     def get_cached_module(module_name, object_names, cache_dir, timeout):
         path = _cached_library(str(cache_dir), module_name)

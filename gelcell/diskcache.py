@@ -64,9 +64,20 @@ def write_npz(path: str, arrays: dict, compressed: bool) -> bool:
             with contextlib.suppress(OSError):
                 os.remove(tmp)        # left only if writing failed or was interrupted
     except OSError as exc:             # e.g. a read-only cache directory: the run goes on uncached
-        _log.debug("cache: cannot write %s: %s", path, exc)
+        _warn_once(directory, exc)
         return False
     return True
+
+
+_WARNED: set[str] = set()
+
+
+def _warn_once(directory: str, exc: OSError) -> None:
+    """One warning per directory and process: the cache is skipped, the run goes on."""
+    if directory not in _WARNED:
+        _WARNED.add(directory)
+        _log.warning("cache directory %s cannot be written (%s; check XDG_CACHE_HOME): going on without "
+                     "this cache", directory, exc.strerror or exc)
 
 
 def prune(directory: str, entry_name: re.Pattern, max_entries: int, max_bytes: float = float("inf")) -> None:

@@ -201,7 +201,8 @@ def _inputs(tmp_path) -> dict:
                                                                          "not a regular file"]),
     (["run", "shear", "--gel-moduli", "1e-12"], 4, ["1e+12 times as stiff as the gel", "[1e-06, 1e+06]"]),
     (["run", "shear", "--cell-moduli", "1e9"], 4, ["1e+09 times as stiff as the gel", "[1e-06, 1e+06]"]),
-], ids=["binary-case-file", "utf16-case-file", "binary-table", "utf16-table", "coupling-order", "update-table-markers", "config-dev-zero", "table-dev-zero", "gel-moduli-tiny", "cell-moduli-huge"])
+], ids=["binary-case-file", "utf16-case-file", "binary-table", "utf16-table", "coupling-order",
+        "update-table-markers", "config-dev-zero", "table-dev-zero", "gel-moduli-tiny", "cell-moduli-huge"])
 def test_issue28_refused_before_meshing(tmp_path, args, code, words):
     """Items 10, 14, 15: one line and the exit code of the input's fault, before anything is meshed."""
     files = _inputs(tmp_path)
@@ -263,3 +264,27 @@ def test_issue28_max_windows_reached(tmp_path):
     line = error_line(proc, "run")
     assert "1 windows (time.max_windows) reached" in line and "raise max_windows" in line
     assert not (tmp_path / "o").exists()
+
+
+@serial_cli
+def test_issue28_an_unusable_cache_directory_is_skipped_with_a_warning(tmp_path):
+    """Item 10: XDG_CACHE_HOME naming a file: the caches are skipped with a warning, the run succeeds."""
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    env = dict(os.environ, MPLBACKEND="Agg", XDG_CACHE_HOME=str(blocker))
+    for key in ("GELCELL_CACHE_DIR", "GELCELL_PRIOR_CACHE_DIR"):
+        env.pop(key, None)
+    proc = subprocess.run([sys.executable, "-m", "gelcell.cli", "run", "shear", "--no-cell", "--mesh-size", "3",
+                           "--no-figures", "--quiet", "--out", "o"], capture_output=True, text=True, env=env,
+                          cwd=tmp_path, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert "Traceback" not in proc.stderr and "error" not in proc.stderr
+    assert "form compiler's cache" in proc.stderr and "cannot be written" in proc.stderr
+    assert (tmp_path / "o" / "summary.json").exists()
+
+
+def test_writable_directory(tmp_path):
+    from femtools import jitcache
+    (tmp_path / "a-file").write_text("")
+    assert not jitcache.writable_directory(str(tmp_path / "a-file" / "fenics"))
+    assert jitcache.writable_directory(str(tmp_path / "fine"))
