@@ -12,6 +12,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 import types
 
 import pytest
@@ -288,3 +289,38 @@ def test_writable_directory(tmp_path):
     (tmp_path / "a-file").write_text("")
     assert not jitcache.writable_directory(str(tmp_path / "a-file" / "fenics"))
     assert jitcache.writable_directory(str(tmp_path / "fine"))
+
+
+# ------------------------------------------------------------------ issue 28 item 9: one rank fails
+@serial_cli
+@pytest.mark.parametrize("failing", ["rank0-ca-nan", "rank1-relative-case-file"])
+def test_issue28_a_failure_on_one_rank_ends_every_rank(tmp_path, failing):
+    """Under ``mpirun -n 2`` (one program per rank) only one rank fails: the job ends within seconds
+    with that rank's one error line and a nonzero exit, where it used to hang."""
+    from mpi_run import mpirun_available
+    if not mpirun_available():
+        pytest.skip("mpirun not available")
+    for rank in (0, 1):
+        (tmp_path / f"w{rank}").mkdir()
+    (tmp_path / "w0" / "case.toml").write_text('[case]\nname = "shear"\n[mesh]\nsize_factor = 3\n')
+    common = ["--config", "case.toml", "--no-figures", "--quiet", "--out", str(tmp_path / "o")]
+    ranks = ([["--ca", "nan"], []] if failing == "rank0-ca-nan" else [[], []])
+    cmd = ["mpirun"]
+    for rank, extra in enumerate(ranks):
+        wdir = tmp_path / ("w0" if failing == "rank0-ca-nan" else f"w{rank}")   # w1 has no case.toml
+        cmd += ([":"] if rank else []) + ["-n", "1", "-wdir", str(wdir), sys.executable, "-m", "gelcell.cli",
+                                          "run", *common, *extra]
+    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+               OMPI_MCA_rmaps_base_oversubscribe="1", OMPI_MCA_mpi_yield_when_idle="1", MPLBACKEND="Agg")
+    started = time.monotonic()
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=120)
+    elapsed = time.monotonic() - started
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("gelcell run: error: ")]
+    assert proc.returncode == 2, proc.stderr
+    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    rank = 0 if failing == "rank0-ca-nan" else 1
+    words = ["parameter 'ca' = nan"] if rank == 0 else ["cannot read case file 'case.toml'"]
+    for word in words + [f"on rank {rank} of 2 only: aborting the job"]:
+        assert word in lines[0], lines[0]
+    assert elapsed < 60, elapsed
+    assert not (tmp_path / "o").exists()

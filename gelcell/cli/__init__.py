@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import os
 import sys
+import time
 import traceback
 import typing
 
@@ -48,19 +49,80 @@ def configure_logging(debug: bool = False) -> None:
                         level=logging.DEBUG if debug else logging.WARNING, force=True)
 
 
+#: Seconds a failing rank waits for the other ranks to fail too (an error they all meet, such as a
+#: bad option, reaches every rank within milliseconds) before it ends the whole job.
+AGREEMENT_TIMEOUT = 5.0
+
+
+def _everyone_failed(errors: MPI.Comm, timeout: float = AGREEMENT_TIMEOUT) -> bool:
+    """Whether every rank of ``errors`` arrived here (all failed) within ``timeout`` seconds.
+
+    ``errors`` is a duplicate of COMM_WORLD used for nothing else, so this non-blocking barrier
+    cannot be matched by the collective calls of a rank that did not fail and is still working.
+    """
+    request = errors.Ibarrier()
+    deadline = time.monotonic() + timeout
+    while not request.Test():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)
+    return True
+
+
+def _end(errors: MPI.Comm | None, code: int, report: typing.Callable[[str], None]) -> int:
+    """End a failure on every rank: the exit code of rank 0's failure if every rank failed (rank 0
+    reports it), else this rank reports its own and aborts the job (the others would wait forever)."""
+    if errors is None or _everyone_failed(errors):
+        if errors is not None:
+            code = errors.bcast(code, root=0)
+            errors.Free()
+        if MPI.COMM_WORLD.rank == 0:
+            report("")
+        return code
+    world = MPI.COMM_WORLD
+    report(f" (on rank {world.rank} of {world.size} only: aborting the job)")
+    world.Abort(code)
+    return code                         # not reached
+
+
 def main(argv: typing.Sequence[str] | None = None) -> int:
+    """Run one ``gelcell`` command; the exit code (every failure: one line, see :mod:`gelcell.errors`).
+
+    Under MPI a failure ends every rank: if all ranks fail (within :data:`AGREEMENT_TIMEOUT`),
+    rank 0 prints its line; if one rank fails alone, it prints its line and aborts the job.
+    """
+    world = MPI.COMM_WORLD
+    errors = world.Dup() if world.size > 1 else None
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:                 # argparse printed its message (on each rank that failed)
+        if exc.code in (0, None) or errors is None:
+            if errors is not None:
+                errors.Free()
+            raise
+        raise SystemExit(_end(errors, int(exc.code) if isinstance(exc.code, int) else 2, lambda _: None)) from None
     configure_logging(args.debug)
     if not getattr(args, "command_name", None):
+        if errors is not None:
+            errors.Free()
         parser.print_help()
         return 2
+    failure: BaseException | None = None
     with install_signal_handlers():
         try:
-            return int(COMMANDS[args.command_name](args) or 0)
+            code = int(COMMANDS[args.command_name](args) or 0)
         except (Exception, KeyboardInterrupt) as exc:      # every failure: one line and its exit code
-            if MPI.COMM_WORLD.rank == 0:
-                if args.debug:
-                    traceback.print_exc()
-                print(f"gelcell {args.command}: error: {message(exc)}", file=sys.stderr, flush=True)
-            return exit_code(exc)
+            failure, code = exc, exit_code(exc)
+            trace = traceback.format_exc()
+    if failure is None:
+        if errors is not None:
+            errors.Free()
+        return code
+
+    def report(where: str) -> None:
+        if args.debug:
+            print(trace, file=sys.stderr, end="", flush=True)
+        print(f"gelcell {args.command}: error: {message(failure)}{where}", file=sys.stderr, flush=True)
+
+    return _end(errors, code, report)
