@@ -87,8 +87,9 @@ COUPLING_GROWTH = 10.0
 
 _COUPLING_ADVICE = ("use the default --acceleration iqn-ils, or aitken (README: 'Choosing coupling "
                     "settings')")
-_LOAD_ADVICE = ("the load is too large for this model: lower Ca (--ca) or the load; with --kinematics small, "
-                "use the default --kinematics finite; for a time-dependent run, a smaller --dt")
+_LOAD_ADVICE = ("the load is too large for this model: lower Ca (--ca; --gel-moduli X divides it by X) or the "
+                "load; with --kinematics small, use the default --kinematics finite; for a time-dependent run, "
+                "a smaller --dt")
 
 
 def _coupling_growth(exc: CouplingDivergedError) -> float:

@@ -78,7 +78,7 @@ def test_debug_adds_the_traceback(tmp_path):
     (["--config", "{diverging}", "--acceleration", "none", "--gamma2", "dirichlet"], 5,
      ["coupling diverged", "Gamma2/force", "--acceleration iqn-ils"]),
     (["--config", "{few}"], 6, ["did not converge in 3 iterations", "raise max_iterations"]),
-    (["--ca", "1e-3"], 8, ["gel: Newton's method failed", "lower Ca"]),
+    (["--ca", "1e-3"], 8, ["gel: Newton's method failed", "lower Ca", "--gel-moduli X divides it"]),
 ], ids=["diverged", "not-converged", "newton"])
 def test_solver_failures(tmp_path, args, code, words):
     cases = {"few": "max_iterations = 3", "diverging": "divergence_factor = 100"}   # stop early
