@@ -304,39 +304,25 @@ def run_tasks(tasks: list, costs: list[float], processes: int) -> list:
 
 
 def draw_transient_figures(directory: str, rows: list[dict], summary: dict, params, comm) -> list[str]:
-    """trajectory.png (centroid x and y against t, y on its own axis, steady values marked) and
-    iterations.png (coupling iterations per window); rank 0 draws, returns the file names."""
+    """trajectory.png and iterations.png of a time-dependent run; rank 0 draws, returns the file names."""
     if comm.rank != 0:
         return []
-    written: list[str] = []
-    t = np.array([r["t"] for r in rows])
-    seconds = params.to_si(t, "time")
+    fig = _trajectory_figure(rows, summary["transient"], params)
+    written = _save(fig, directory, "trajectory.png")
+    return written + _save(_iterations_figure(rows, summary["transient"]), directory, "iterations.png")
+
+
+def _trajectory_figure(rows: list[dict], tr: dict, params):
+    """The centroid's x and y against t (y on its own axis, steady values and t50/t90/t99 marked);
+    without a cell, max |u_s|."""
+    seconds = params.to_si(np.array([r["t"] for r in rows]), "time")
     L = params.to_report(1.0, "length")
-    tr = summary["transient"]
     fig, ax = plt.subplots(figsize=(8, 4.5))
     if params.with_cell:
-        x = L * np.array([r["centroid_x"] for r in rows])
-        y = L * np.array([r["centroid_y"] for r in rows])
-        n_cells = sum(1 for k in rows[-1] if k.startswith("cell_") and k.endswith("_centroid_x"))
-        if n_cells > 1:       # several cells: each one's x, the extremes' curve dashed
-            for k in range(1, n_cells + 1):
-                ax.plot(seconds, L * np.array([r.get(f"cell_{k}_centroid_x", np.nan) for r in rows]), "-",
-                        lw=0.9, label=f"cell_{k} x")
-        ax.plot(seconds, x, "C0-" if n_cells <= 1 else "k--", label="centroid x" if n_cells <= 1 else
-                "x of the cell that moves most")
-        ax.axhline(x[-1], color="C0", ls=":", lw=0.8, label=f"final x {x[-1]:.4g} µm")
-        ax.set_ylabel("centroid displacement x [µm]", color="C0")
-        if np.any(y != 0):
-            # the much smaller y motion on its own axis (zero by symmetry in the normal-flow device)
-            ay = ax.twinx()
-            ay.plot(seconds, y, "C3-", label="centroid y")
-            ay.axhline(y[-1], color="C3", ls=":", lw=0.8)
-            ay.set_ylabel("centroid displacement y [µm]", color="C3")
+        _draw_centroids(ax, rows, seconds, L, params)
         for q, style in (("t50", "--"), ("t90", "-."), ("t99", ":")):
             if tr.get(q) is not None:
                 ax.axvline(params.to_si(tr[q], "time"), color="grey", ls=style, lw=0.8, label=q)
-        ax.set_title(f"{params.label}: the cell's centroid from rest" if n_cells <= 1 else
-                     f"{params.label}: the cells' centroids from rest")
     else:
         u = L * np.array([r["max_network_displacement"] for r in rows])
         ax.plot(seconds, u, "C0-", label="max |u_s|")
@@ -346,8 +332,34 @@ def draw_transient_figures(directory: str, rows: list[dict], summary: dict, para
     ax.set_xlabel("t [s]")
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right", fontsize=8)
-    written += _save(fig, directory, "trajectory.png")
+    return fig
 
+
+def _draw_centroids(ax, rows: list[dict], seconds: np.ndarray, L: float, params) -> None:
+    """Each cell's centroid x (several cells: the extremes' curve dashed) and the y motion on a twin axis."""
+    x = L * np.array([r["centroid_x"] for r in rows])
+    y = L * np.array([r["centroid_y"] for r in rows])
+    n_cells = sum(1 for k in rows[-1] if k.startswith("cell_") and k.endswith("_centroid_x"))
+    if n_cells > 1:
+        for k in range(1, n_cells + 1):
+            ax.plot(seconds, L * np.array([r.get(f"cell_{k}_centroid_x", np.nan) for r in rows]), "-",
+                    lw=0.9, label=f"cell_{k} x")
+    ax.plot(seconds, x, "C0-" if n_cells <= 1 else "k--", label="centroid x" if n_cells <= 1 else
+            "x of the cell that moves most")
+    ax.axhline(x[-1], color="C0", ls=":", lw=0.8, label=f"final x {x[-1]:.4g} µm")
+    ax.set_ylabel("centroid displacement x [µm]", color="C0")
+    if np.any(y != 0):
+        # the much smaller y motion on its own axis (zero by symmetry in the normal-flow device)
+        ay = ax.twinx()
+        ay.plot(seconds, y, "C3-", label="centroid y")
+        ay.axhline(y[-1], color="C3", ls=":", lw=0.8)
+        ay.set_ylabel("centroid displacement y [µm]", color="C3")
+    ax.set_title(f"{params.label}: the cell's centroid from rest" if n_cells <= 1 else
+                 f"{params.label}: the cells' centroids from rest")
+
+
+def _iterations_figure(rows: list[dict], tr: dict):
+    """Coupling iterations per window (the first row is the initial state)."""
     fig, ax = plt.subplots(figsize=(8, 3.5))
     its = [r["iterations"] for r in rows[1:]]
     ax.bar(np.arange(1, len(its) + 1), its, width=1.0, color="C0")
@@ -356,8 +368,7 @@ def draw_transient_figures(directory: str, rows: list[dict], summary: dict, para
     mean = tr.get("iterations_mean")
     ax.set_title(f"iterations per window (mean {mean:.2f})" if mean is not None else "iterations per window")
     ax.grid(alpha=0.3, axis="y")
-    written += _save(fig, directory, "iterations.png")
-    return written
+    return fig
 
 
 def _worker_main() -> int:
