@@ -157,3 +157,41 @@ def test_case_file_names_the_geometry_relative_to_itself(tmp_path):
     assert q.geometry.cell_list() == [(1.9, -0.2, 0.06), (2.1, -0.3, 0.05)]
     with pytest.raises(ParameterError, match="e"):
         q.with_e(0.3)
+
+
+HOSTILE = [
+    ("SystemCall", 'SystemCall "touch {pwned}";', "'SystemCall' runs a shell command"),
+    ("Shell", 'System "touch {pwned}";', "'System' runs a shell command"),
+    ("OnelabRun", 'OnelabRun("x", "touch {pwned}");', "'OnelabRun' runs an external program"),
+    ("Include", 'Include\n  "{pwned}.geo";', "'Include' reads another file"),
+    ("Save", 'Save "{pwned}.msh";', "'Save' writes a file"),
+    ("Printf to a file", 'Printf("x = %g", 1) > "{pwned}";', "'Printf(...) >' writes a file"),
+    ("Solver option", 'Solver.Executable0 = "/bin/sh";', "option 'Solver.Executable0'"),
+]
+
+
+@pytest.mark.parametrize("statement,words", [c[1:] for c in HOSTILE], ids=[c[0] for c in HOSTILE])
+def test_geo_statements_that_reach_the_shell_or_files_are_refused_before_gmsh(shared_tmp_path, cli_stderr,
+                                                                              statement, words):
+    """Issue 28 item 1: the statement and its line are named, exit 2, nothing run, nothing written."""
+    pwned = shared_tmp_path / "pwned"
+    lines = SMALL.count("\n")
+    path = _write(shared_tmp_path, [(SMALL, SMALL + "// comment: SystemCall \"x\";\n"
+                                     + statement.format(pwned=pwned) + "\n")])
+    out = shared_tmp_path / "out"
+    code = main(["run", "--geometry", path, "--quiet", "--no-figures", "--out", str(out)])
+    err = cli_stderr()
+    assert code == 2, err
+    assert f"line {lines + 2}: {words}" in err and "run commands or reach the file system" in err, err
+    assert err.count("line ") == 1, err              # the comment's SystemCall is no statement
+    COMM.Barrier()
+    assert sorted(os.listdir(shared_tmp_path)) == ["device.geo"]   # nothing run, nothing written
+
+
+def test_allowed_statements_are_not_refused():
+    from gelcell.geometry.files.screen import geo_problems
+    text = ('Physical Surface("Save") = {1}; /* Include "x"; */ Printf("fine %g", 1);\n'
+            'Mesh.MeshSizeFactor = 2; General.Terminal = 1; Field[1].CurvesList = {1}; Delete Physicals;\n')
+    assert geo_problems(text) == []
+    for name in ("shear.geo", "shear_three_cells.geo", "three_channel_chip.geo"):
+        assert geo_problems(open(os.path.join(HERE, "..", "examples", "devices", name)).read()) == []

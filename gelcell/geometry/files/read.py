@@ -16,6 +16,7 @@ import numpy as np
 from femtools.gmshimport import gmsh_session, import_gmsh
 from gelcell.case import FileGeometry
 from gelcell.errors import ParameterError
+from gelcell.geometry.files.screen import check_geo_statements
 
 __all__ = ["GeometryInfo", "ELEMENT_TYPES", "read_geometry", "file_version"]
 
@@ -149,6 +150,8 @@ def _read_with_gmsh(path: str) -> GeometryInfo:
 def read_geometry(path: str) -> GeometryInfo:
     """Physical groups and topology of a geometry file (cached per file version)."""
     FileGeometry(file=path)          # raises ParameterError for a bad path
+    if path.lower().endswith(".geo"):
+        check_geo_statements(path)   # before gmsh sees it: nothing that runs commands or touches files
     key = file_version(path)
     if key not in _CACHE:
         _CACHE[key] = _read_with_gmsh(os.path.abspath(path))
