@@ -195,3 +195,89 @@ def test_allowed_statements_are_not_refused():
     assert geo_problems(text) == []
     for name in ("shear.geo", "shear_three_cells.geo", "three_channel_chip.geo"):
         assert geo_problems(open(os.path.join(HERE, "..", "examples", "devices", name)).read()) == []
+
+
+HANG = "\nFor i In {1:2e9}\n  x = i;\nEndFor\n"       # keeps gmsh's parser busy for hours
+
+
+def _workers_of(pid: int) -> list[int]:
+    """The gmsh child processes (gelcell/geometry/files/worker.py) whose parent is ``pid``."""
+    found = []
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as f:
+                ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+            with open(f"/proc/{entry}/cmdline", "rb") as f:
+                cmdline = f.read()
+        except (OSError, IndexError, ValueError):
+            continue
+        if ppid == pid and b"gelcell/geometry/files/worker.py" in cmdline:
+            found.append(int(entry))
+    return found
+
+
+@pytest.mark.skip_in_parallel
+def test_a_geo_file_that_keeps_gmsh_busy_is_stopped_by_sigterm(tmp_path):
+    """Issue 28 item 2: gmsh parses the file in a child process: SIGTERM ends the run (143) within seconds."""
+    import signal
+    import subprocess
+    import sys
+    import time
+    path = tmp_path / "hang.geo"
+    path.write_text(SMALL + HANG)
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "gelcell.cli", "run", "--geometry", str(path), "--quiet",
+                             "--no-figures", "--out", str(out)], stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ, MPLBACKEND="Agg"))
+    deadline = time.monotonic() + 60
+    while not _workers_of(proc.pid) and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.1)
+    workers = _workers_of(proc.pid)
+    assert workers, "gmsh's child process never started"
+    time.sleep(1.0)                                  # gmsh is in the loop now
+    sent = time.monotonic()
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=30)
+    assert time.monotonic() - sent < 5
+    assert proc.returncode == 143, err
+    assert "gelcell run: error: interrupted by SIGTERM" in err
+    assert not any(os.path.exists(f"/proc/{w}") and _workers_of(proc.pid) for w in workers)
+    time.sleep(0.2)
+    assert not [w for w in workers if os.path.exists(f"/proc/{w}/cmdline")
+                and b"worker" in open(f"/proc/{w}/cmdline", "rb").read()], "gmsh's child outlived the run"
+    assert sorted(os.listdir(tmp_path)) == ["hang.geo"]
+
+
+def test_a_geo_file_that_keeps_gmsh_busy_meets_the_time_limit(shared_tmp_path, cli_stderr, monkeypatch):
+    """The time bound ($GELCELL_GMSH_TIME_LIMIT) ends it with a model limit (exit 4), nothing written."""
+    path = _write(shared_tmp_path, [(SMALL, SMALL + HANG)])
+    monkeypatch.setenv("GELCELL_GMSH_TIME_LIMIT", "1.5")
+    code = main(["run", "--geometry", path, "--quiet", "--no-figures", "--out", str(shared_tmp_path / "out")])
+    err = cli_stderr()
+    assert code == 4, err
+    assert "gmsh was still reading it after 1.5 s" in err and "GELCELL_GMSH_TIME_LIMIT" in err, err
+    COMM.Barrier()
+    assert sorted(os.listdir(shared_tmp_path)) == ["device.geo"]
+
+
+def test_a_too_fine_geo_file_is_refused_before_meshing(shared_tmp_path, cli_stderr):
+    """Issue 28 item 2: the element count is estimated from the file's sizes (coarse probe meshes) and
+    refused like a built-in device's (exit 4, with a --mesh-size that fits)."""
+    from gelcell.case import CaseParameters
+    from gelcell.geometry import described
+    from gelcell.geometry.files.read import reference_elements
+    from gelcell.post.validity import check_file_mesh_size
+    shear = os.path.join(HERE, "..", "examples", "devices", "shear.geo")
+    out = shared_tmp_path / "out"
+    code = main(["run", "--geometry", shear, "--mesh-size", "1e-4", "--quiet", "--no-figures", "--out", str(out)])
+    err = cli_stderr()
+    assert code == 4, err
+    assert "--mesh-size 0.0001 would make about" in err and "geometry file shear.geo" in err, err
+    suggested = float(err.split("choose --mesh-size ")[1].split()[0])
+    params = described(CaseParameters.from_dict({"geometry": {"file": shear}, "mesh": {"size_factor": suggested}}))
+    check_file_mesh_size(params)
+    assert not out.exists()
+    # the estimate against the mesh of --mesh-size 1 (about 7.2e3 triangles)
+    assert 0.8 < reference_elements(shear) / 7.2e3 < 1.25

@@ -42,7 +42,7 @@ from femtools import petscgarbage
 from femtools.gmshimport import gmsh_session
 from femtools.mesh import ModelArrays, model_to_mesh, model_to_region_mesh
 from gelcell.case import CaseParameters
-from gelcell.errors import ParameterError
+from gelcell.errors import ModelLimitError, ParameterError
 from gelcell.geometry import meshcache
 from gelcell.geometry.describe import described, device_layout
 from gelcell.geometry.layout import DeviceLayout
@@ -53,14 +53,16 @@ __all__ = ["DeviceMeshes", "build_meshes"]
 
 # --------------------------------------------------------------------------- gmsh model
 def _mesh_with_gmsh(params: CaseParameters) -> ModelArrays:
-    """Mesh the device of ``params`` with gmsh (rank 0) and return the raw arrays of its mesh."""
+    """Mesh the device of ``params`` with gmsh (rank 0) and return the raw arrays of its mesh.
+
+    A user's geometry file is meshed in a child process (stoppable, bounded:
+    :mod:`gelcell.geometry.files.child`), a built-in device in this one."""
+    if params.case == "file":
+        from gelcell.geometry.files.build import mesh_file
+        return ModelArrays(**mesh_file(params))
     with gmsh_session() as gmsh:
-        if params.case == "file":
-            from gelcell.geometry.files.build import build_file_model    # imports gmsh
-            build_file_model(params)
-        else:
-            from gelcell.geometry.builtin_model import build_model       # imports gmsh
-            build_model(params)
+        from gelcell.geometry.builtin_model import build_model       # imports gmsh
+        build_model(params)
         return ModelArrays.from_model(gmsh.model)
 
 
@@ -214,6 +216,8 @@ def build_meshes(params: CaseParameters, comm: MPI.Comm = MPI.COMM_WORLD, *,
     if error is not None:
         if error[0] == "ParameterError":
             raise ParameterError(error[1])
+        if error[0] == "ModelLimitError":
+            raise ModelLimitError(error[1])
         raise RuntimeError(f"meshing the {params.case} device failed: {error[0]}: {error[1]}")
     cell_tags = None
     region_meshes = {}

@@ -6,7 +6,9 @@ Before solving (:func:`check_case`, raising :class:`ModelLimitError`):
 * the cell's stiffness must be within :data:`STIFFNESS_RATIO_RANGE` of the gel's
   (:func:`check_stiffness_ratio`);
 * the mesh must fit in this machine's memory (:func:`estimate_mesh`), estimated
-  from the element sizes and the closed-form areas and lengths, before gmsh runs.
+  from the element sizes and the closed-form areas and lengths, before gmsh runs;
+  a geometry file's mesh from coarse probe meshes of its own sizes
+  (:func:`estimate_file_mesh`).
 
 After solving (:func:`model_warnings`), by the case's kinematics
 (``model.kinematics``):
@@ -32,9 +34,11 @@ from gelcell.case import CaseParameters
 from gelcell.errors import ModelLimitError
 from gelcell.geometry import Tag, described
 from gelcell.geometry.builtin import closed_form_measures
+from gelcell.geometry.files.read import reference_elements
+from gelcell.machine import MEMORY_SHARE, machine_memory
 
 __all__ = ["representable_ca", "check_representable", "check_stiffness_ratio", "STIFFNESS_RATIO_RANGE",
-           "estimate_mesh", "check_mesh_size", "check_case",
+           "estimate_mesh", "check_mesh_size", "estimate_file_mesh", "check_file_mesh_size", "check_case",
            "machine_memory", "model_warnings", "MAX_DISPLACEMENT_GRADIENT", "MAX_CELL_STRAIN", "MAX_NEGLECTED"]
 
 # --------------------------------------------------------------------------- representable Ca
@@ -106,8 +110,6 @@ _TRIANGLE = math.sqrt(3.0) / 4.0
 #: 0.68 and 2.09 GB for 1.6e3, 9.1e3 and 3.0e4 elements; the partitioned run needs about half.
 BASE_MEMORY = 0.25e9
 MEMORY_PER_ELEMENT = 4.2e3
-#: Refuse meshes whose estimated memory exceeds this share of the machine's memory.
-MEMORY_SHARE = 0.8
 
 
 def _band_elements(length: float, sides: int, size: float, band: float, far: float, growth: float) -> float:
@@ -147,20 +149,6 @@ def _memory(elements: float) -> float:
     return BASE_MEMORY + MEMORY_PER_ELEMENT * elements * math.log2(max(elements, 2.0))
 
 
-def machine_memory() -> int:
-    """Physical memory of this machine in bytes (or of the cgroup it runs in, if smaller)."""
-    total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    for path in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
-        try:
-            with open(path) as f:
-                text = f.read().strip()
-        except OSError:
-            continue
-        if text.isdigit():
-            total = min(total, int(text))
-    return total
-
-
 def check_mesh_size(params: CaseParameters, memory: int | None = None) -> dict:
     """Raise :class:`ModelLimitError` if the estimated mesh does not fit in ``memory``."""
     est = estimate_mesh(params)
@@ -182,12 +170,53 @@ def check_mesh_size(params: CaseParameters, memory: int | None = None) -> dict:
     return est
 
 
+def estimate_file_mesh(params: CaseParameters) -> dict:
+    """Estimated element count of a geometry file's mesh, from the sizes the file gives.
+
+    A ``.msh`` file's count is its own.  For a ``.geo`` file gmsh makes coarse
+    probe meshes (:func:`gelcell.geometry.files.read.reference_elements`: the
+    triangles at ``--mesh-size 1``, predicted); the count
+    scales as the inverse square of the size factor.  None if gmsh could not
+    make the probes (the file's meshing is bounded in its child process all the same).
+    """
+    reference = reference_elements(params.geometry.file)
+    if reference is None:
+        return {"elements": None, "memory_bytes": None}
+    count = reference / params.mesh.size_factor ** 2
+    return {"elements": count, "memory_bytes": _memory(count)}
+
+
+def check_file_mesh_size(params: CaseParameters, memory: int | None = None) -> dict:
+    """Raise :class:`ModelLimitError` if the estimated mesh of a geometry file does not fit in ``memory``."""
+    est = estimate_file_mesh(params)
+    memory = machine_memory() if memory is None else memory
+    budget = MEMORY_SHARE * memory
+    if est["memory_bytes"] is None or est["memory_bytes"] <= budget:
+        return est
+    name = os.path.basename(params.geometry.file)
+    need = f"about {est['elements']:.2g} elements, which need about {est['memory_bytes'] / 2**30:.3g} GiB"
+    if params.geometry.file.lower().endswith(".msh"):
+        raise ModelLimitError(f"the mesh of geometry file {name} has {need}; this machine has "
+                              f"{memory / 2**30:.3g} GiB: mesh the file more coarsely")
+    lo, hi = params.mesh.size_factor, params.mesh.size_factor
+    while _memory(est["elements"] * (lo / hi) ** 2) > budget:
+        hi *= 2.0
+    for _ in range(40):             # bisect for the finest size factor that fits
+        mid = math.sqrt(lo * hi)
+        lo, hi = (lo, mid) if _memory(est["elements"] * (params.mesh.size_factor / mid) ** 2) <= budget else (mid, hi)
+    raise ModelLimitError(
+        f"--mesh-size {params.mesh.size_factor:g} would make {need} (estimated from the sizes of geometry file "
+        f"{name}); this machine has {memory / 2**30:.3g} GiB: choose --mesh-size {1.01 * hi:.2g} or larger")
+
+
 def check_case(params: CaseParameters) -> None:
     """Every check that must pass before a case is meshed or solved (a geometry file is read and checked)."""
     described(params)
     check_representable(params)
     check_stiffness_ratio(params)
-    if params.case != "file":        # a geometry file's mesh size is the file's: no closed-form estimate
+    if params.case == "file":
+        check_file_mesh_size(params)
+    else:
         check_mesh_size(params)
 
 

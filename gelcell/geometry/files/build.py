@@ -1,8 +1,9 @@
 """Building a geometry file's device in gmsh: gelcell's tags on its groups, and its P2 mesh.
 
-:func:`build_file_model` (rank 0, inside :func:`gelcell.geometry.meshes.build_meshes`)
+:func:`mesh_file` (rank 0, inside :func:`gelcell.geometry.meshes.build_meshes`)
 re-tags the checked groups with gelcell's facet and cell tags and meshes a
-``.geo`` file with the sizes it gives, times ``mesh.size_factor``;
+``.geo`` file with the sizes it gives, times ``mesh.size_factor``, in a
+child process (:mod:`~gelcell.geometry.files.child`);
 :func:`export_builtin` writes a built-in device as a geometry file named by
 the convention.
 """
@@ -11,49 +12,28 @@ from __future__ import annotations
 
 import os
 
-from femtools.gmshimport import gmsh_session, import_gmsh
+from femtools.gmshimport import gmsh_session
 from gelcell.errors import ParameterError
 from gelcell.geometry.builtin import builtin_cells
 from gelcell.geometry.files.analyse import analyse
-from gelcell.geometry.files.read import ELEMENT_TYPES
+from gelcell.geometry.files.child import run_worker
 from gelcell.geometry.tags import Tag
 
-__all__ = ["build_file_model", "convention_names", "export_builtin"]
+__all__ = ["mesh_file", "convention_names", "export_builtin"]
 
 
-def build_file_model(params) -> None:
-    """Load the file into the current gmsh session (rank 0), tag it with gelcell's tags, mesh it (P2)."""
-    gmsh = import_gmsh()
+def mesh_file(params) -> dict:
+    """The arrays of :class:`femtools.mesh.ModelArrays` of the file's device, meshed in a child process.
+
+    The file is checked (:func:`~gelcell.geometry.files.analyse.analyse`), re-tagged with gelcell's
+    tags and meshed with curved P2 triangles (a ``.geo`` file with its sizes times
+    ``mesh.size_factor``) by :func:`gelcell.geometry.files.worker.mesh`.
+    """
     path = os.path.abspath(params.geometry.file)
     fl = analyse(path)
-    gmsh.open(path)
-    gmsh.option.setNumber("General.Terminal", 0)
-    is_mesh = path.lower().endswith(".msh")
-    gmsh.model.removePhysicalGroups()
-    for tag, (surfaces, name) in fl.surface_tags.items():
-        gmsh.model.addPhysicalGroup(2, surfaces, tag)
-        gmsh.model.setPhysicalName(2, tag, name)
-    for tag, curves in fl.curve_tags.items():
-        gmsh.model.addPhysicalGroup(1, curves, tag)
-    if is_mesh:       # (a size factor other than 1 is refused by CaseParameters.validate)
-        if 9 not in _types(gmsh):
-            gmsh.model.mesh.setOrder(2)
-    else:
-        gmsh.option.setNumber("Mesh.MeshSizeFactor",
-                              gmsh.option.getNumber("Mesh.MeshSizeFactor") * params.mesh.size_factor)
-        gmsh.option.setNumber("Mesh.ElementOrder", 1)
-        gmsh.model.mesh.clear()
-        gmsh.model.mesh.generate(2)
-        bad = [t for t in _types(gmsh) if t not in ELEMENT_TYPES]
-        if bad:
-            raise ParameterError(f"geometry file {path!r}: its mesh options make element type(s) {bad} (gmsh "
-                                 f"numbers, e.g. 3 = quadrangle); gelcell takes triangles only (no Recombine)")
-        gmsh.model.mesh.setOrder(2)
-    gmsh.model.mesh.renumberNodes()
-
-
-def _types(gmsh) -> list[int]:
-    return [int(t) for t in gmsh.model.mesh.getElementTypes()]
+    request = {"op": "mesh", "path": path, "surface_tags": fl.surface_tags,
+               "curve_tags": fl.curve_tags, "size_factor": params.mesh.size_factor}
+    return run_worker(request, path, "meshing")
 
 
 def convention_names(params) -> dict[int, str]:
