@@ -281,3 +281,43 @@ def test_a_too_fine_geo_file_is_refused_before_meshing(shared_tmp_path, cli_stde
     assert not out.exists()
     # the estimate against the mesh of --mesh-size 1 (about 7.2e3 triangles)
     assert 0.8 < reference_elements(shear) / 7.2e3 < 1.25
+
+
+def _msh_files(directory) -> dict:
+    """The coarse built-in shear device written as MSH 4.1, 2.2 and 1.0 files (rank 0)."""
+    from gelcell.case import CaseParameters
+    from gelcell.geometry.files.build import export_builtin
+    paths = {v: str(directory / f"shear_{v}.msh") for v in ("4.1", "2.2", "1.0")}
+    if COMM.rank == 0:
+        export_builtin(CaseParameters.default("shear").with_mesh_size(3), paths["4.1"])
+        from femtools.gmshimport import gmsh_session
+        for v in ("2.2", "1.0"):
+            with gmsh_session() as gmsh:
+                gmsh.open(paths["4.1"])
+                gmsh.option.setNumber("Mesh.MshFileVersion", float(v))
+                gmsh.write(paths[v])
+    COMM.Barrier()
+    return paths
+
+
+def test_msh_2_files_are_read_like_msh_4_and_msh_1_is_refused_naming_it(shared_tmp_path, cli_stderr):
+    """Issue 28 item 4: an MSH 2.2 file ended in 'internal error: KeyError: 2' (no curve ends or
+    adjacencies in MSH 2: gmsh's createTopology makes them); MSH 1.0 has no physical names."""
+    import numpy as np
+    from gelcell.case import CaseParameters
+    from gelcell.geometry.meshes import build_meshes
+    paths = _msh_files(shared_tmp_path)
+    counts, nodes = {}, {}
+    for v in ("4.1", "2.2"):
+        meshes = build_meshes(CaseParameters.from_dict({"geometry": {"file": paths[v]}}), COMM)
+        counts[v] = meshes.counts()
+        geometry = meshes.whole[0].geometry
+        owned = geometry.x[:geometry.index_map().size_local, :2]
+        nodes[v] = COMM.allreduce(owned.sum(axis=0), op=MPI.SUM)
+    assert counts["2.2"] == counts["4.1"]
+    assert np.allclose(nodes["2.2"], nodes["4.1"])
+    out = shared_tmp_path / "out"
+    code = main(["run", "--geometry", paths["1.0"], "--quiet", "--no-figures", "--out", str(out)])
+    err = cli_stderr()
+    assert code == 2 and "is in the MSH 1.0 format, which has no physical names" in err, err
+    assert not out.exists()

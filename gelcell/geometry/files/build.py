@@ -17,6 +17,7 @@ from gelcell.errors import ParameterError
 from gelcell.geometry.builtin import builtin_cells
 from gelcell.geometry.files.analyse import analyse
 from gelcell.geometry.files.child import run_worker
+from gelcell.geometry.files.read import msh_version
 from gelcell.geometry.tags import Tag
 
 __all__ = ["mesh_file", "convention_names", "export_builtin"]
@@ -31,7 +32,8 @@ def mesh_file(params) -> dict:
     """
     path = os.path.abspath(params.geometry.file)
     fl = analyse(path)
-    request = {"op": "mesh", "path": path, "surface_tags": fl.surface_tags,
+    version = msh_version(path) if path.lower().endswith(".msh") else None
+    request = {"op": "mesh", "path": path, "msh_version": version, "surface_tags": fl.surface_tags,
                "curve_tags": fl.curve_tags, "size_factor": params.mesh.size_factor}
     return run_worker(request, path, "meshing")
 

@@ -2,7 +2,8 @@
 
 :func:`read_geometry` checks a ``.geo`` file's statements
 (:mod:`~gelcell.geometry.files.screen`: nothing that reaches the shell or the
-file system) before gmsh sees it, then
+file system) or a ``.msh`` file's format version (:func:`msh_version`) before
+gmsh sees it, then
 opens it with gmsh in a child process (:mod:`~gelcell.geometry.files.child`:
 stoppable by a signal, bounded in time and memory) and returns what the
 analysis needs as plain data (:class:`GeometryInfo`, the same on every rank),
@@ -19,7 +20,7 @@ from gelcell.errors import ParameterError
 from gelcell.geometry.files.child import run_worker
 from gelcell.geometry.files.screen import check_geo_statements
 
-__all__ = ["GeometryInfo", "ELEMENT_TYPES", "read_geometry", "reference_elements", "file_version"]
+__all__ = ["GeometryInfo", "ELEMENT_TYPES", "read_geometry", "reference_elements", "file_version", "msh_version"]
 
 #: gmsh element types gelcell takes from a .msh file: points, 2- and 3-node lines, 3- and 6-node triangles
 ELEMENT_TYPES = {15: "point", 1: "2-node line", 8: "3-node line", 2: "3-node triangle", 9: "6-node triangle"}
@@ -51,11 +52,37 @@ def file_version(path: str):
     return (os.path.abspath(path), st.st_mtime_ns, st.st_size)
 
 
+def msh_version(path: str) -> str:
+    """The MSH format version of a ``.msh`` file, from its first lines; ParameterError if it is no MSH file
+    or an MSH 1.0 one (which has no physical names, and so cannot follow the naming convention)."""
+    with open(path, "rb") as f:
+        lines = f.read(4096).splitlines()
+    first = lines[0].strip() if lines else b""
+    if first in (b"$NOD", b"$NOE"):
+        raise ParameterError(f"geometry file {path!r} is in the MSH 1.0 format, which has no physical names, so "
+                             f"its groups cannot be named by the convention (docs/geometry-files.md): write it "
+                             f"as MSH 4.1 or 2.2 (e.g. gmsh FILE.geo -2 -format msh41)")
+    if first != b"$MeshFormat" or len(lines) < 2 or not lines[1].split():
+        raise ParameterError(f"geometry file {path!r} is not a MSH file (it does not begin with $MeshFormat)")
+    version = lines[1].split()[0].decode("ascii", "replace")
+    try:
+        number = float(version)
+    except ValueError:
+        number = 0.0
+    if not 2 <= number < 5:
+        raise ParameterError(f"geometry file {path!r}: MSH format version {version!r} is not supported "
+                             f"(gelcell reads MSH 2.x and 4.x)")
+    return version
+
+
 def _read_with_gmsh(path: str) -> GeometryInfo:
     """Check what must be checked before gmsh sees the file, then read it in a bounded child process."""
+    version = None
     if path.lower().endswith(".geo"):
         check_geo_statements(path)
-    fields = run_worker({"op": "read", "path": path}, path, "reading")
+    else:
+        version = msh_version(path)
+    fields = run_worker({"op": "read", "path": path, "msh_version": version}, path, "reading")
     return GeometryInfo(path=path, **fields)
 
 
@@ -67,7 +94,9 @@ def reference_elements(path: str) -> float | None:
     key = file_version(path)
     if key not in _ESTIMATES:
         try:
-            _ESTIMATES[key] = run_worker({"op": "estimate", "path": os.path.abspath(path)}, path, "estimating")
+            _ESTIMATES[key] = run_worker({"op": "estimate", "path": os.path.abspath(path),
+                                           "msh_version": msh_version(path) if path.lower().endswith(".msh")
+                                           else None}, path, "estimating")
         except ParameterError:
             _ESTIMATES[key] = None
     return _ESTIMATES[key]

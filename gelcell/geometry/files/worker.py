@@ -6,13 +6,14 @@ file prints goes to stderr): ``("ok", payload)`` or ``("error", kind, text)``.
 The parent side, with the time and memory bounds and the signals, is
 :mod:`gelcell.geometry.files.child`.  Requests:
 
-* ``{"op": "read", "path"}``: the physical groups and topology of the
+* ``{"op": "read", "path", "msh_version"}`` (``msh_version``: None for a
+  ``.geo`` file; an MSH 2 file gets its topology from ``createTopology``): the physical groups and topology of the
   file (the fields of :class:`~gelcell.geometry.files.read.GeometryInfo`);
-* ``{"op": "estimate", "path"}``: the triangles of the file at
+* ``{"op": "estimate", "path", "msh_version"}``: the triangles of the file at
   ``--mesh-size 1`` (a ``.geo`` file's from coarse probe meshes, see
   :func:`reference_elements`), once the file is known to be valid (probe
   meshes of a broken file can crash gmsh);
-* ``{"op": "mesh", "path", "surface_tags", "curve_tags", "size_factor"}``: the
+* ``{"op": "mesh", "path", "msh_version", "surface_tags", "curve_tags", "size_factor"}``: the
   file re-tagged with gelcell's tags and meshed with
   curved P2 triangles, as the arrays of
   :class:`femtools.mesh.ModelArrays`.
@@ -68,12 +69,15 @@ def _session():
     return gmsh
 
 
-def _open(gmsh, path: str) -> None:
+def _open(gmsh, path: str, msh_version: str | None) -> None:
+    """Open the file; a mesh older than MSH 4 gets the topology MSH 4 stores (curve ends, adjacencies)."""
     try:
         gmsh.open(path)
     except Exception as exc:
         raise Refused(f"geometry file {path!r}: gmsh cannot read it: {exc}") from None
     gmsh.option.setNumber("General.Terminal", 0)
+    if msh_version is not None and float(msh_version) < 4:
+        gmsh.model.mesh.createTopology()
 
 
 # --------------------------------------------------------------------------- read
@@ -183,7 +187,7 @@ def read(request: dict) -> dict:
     """The fields of a GeometryInfo (``path`` excepted) of the file of ``request``."""
     gmsh = _session()
     path = request["path"]
-    _open(gmsh, path)
+    _open(gmsh, path, request.get("msh_version"))
     is_mesh = path.lower().endswith(".msh")
     entities = gmsh.model.getEntities()
     max_dim = max((d for d, _ in entities), default=-1)
@@ -212,7 +216,7 @@ def estimate(request: dict) -> float:
     """The triangles of the file at ``--mesh-size 1``: a ``.msh`` file's own, a ``.geo`` file's predicted."""
     gmsh = _session()
     path = request["path"]
-    _open(gmsh, path)
+    _open(gmsh, path, request.get("msh_version"))
     return float(_element_count(gmsh)) if path.lower().endswith(".msh") else reference_elements(gmsh)
 
 
@@ -255,7 +259,7 @@ def mesh(request: dict) -> dict:
     """The file re-tagged with gelcell's tags and meshed (P2), as ModelArrays' fields."""
     gmsh = _session()
     path = request["path"]
-    _open(gmsh, path)
+    _open(gmsh, path, request.get("msh_version"))
     is_mesh = path.lower().endswith(".msh")
     gmsh.model.removePhysicalGroups()
     for tag, (surfaces, name) in request["surface_tags"].items():
