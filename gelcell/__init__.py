@@ -9,7 +9,7 @@ The packages import one way, each only from those below it::
     coupled    the three field solvers as coupled participants; the monolithic reference
     geometry   tags, built-in devices, geometry files, meshes and their cache
     case       the parameters and configuration of a run (plain data)
-    errors, diskcache
+    errors, diskcache, machine
 
 The field solvers live in the top-level packages ``fluid``, ``gel`` and
 ``cell``, the coupling library in ``coupling``, shared finite-element

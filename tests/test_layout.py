@@ -16,9 +16,9 @@ import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
-#: gelcell's sub-packages from the bottom up; errors and diskcache are the floor
-GELCELL_LAYERS = [("errors", "diskcache"), ("case",), ("geometry",), ("coupled",), ("post",), ("output",), ("run",),
-                  ("cli",)]
+#: gelcell's sub-packages from the bottom up; errors, diskcache and machine are the floor
+GELCELL_LAYERS = [("errors", "diskcache", "machine"), ("case",), ("geometry",), ("coupled",), ("post",), ("output",),
+                  ("run",), ("cli",)]
 #: the top-level packages and what each may import of the project
 PACKAGES = {"coupling": set(), "femtools": {"coupling"}, "fluid": {"femtools"}, "gel": {"femtools"},
             "cell": {"femtools"}, "gelcell": {"coupling", "femtools", "fluid", "gel", "cell"}}
