@@ -138,6 +138,27 @@ def test_cells_of_a_builtin_device_are_checked_before_meshing(cli_stderr, shared
     assert not out.exists()
 
 
+@pytest.mark.parametrize("how", ["--cells", "case file"])
+def test_a_cell_too_small_for_the_mesh_is_refused_before_gmsh(cli_stderr, shared_tmp_path, how):
+    """Issue 28 item 3: a cell of diameter 1e-9 aborted gmsh (exit 134, a C++ backtrace): one
+    ParameterError names the parameter and its allowed range."""
+    out = shared_tmp_path / "out"
+    if how == "--cells":
+        args, name = ["--cells", "2.0,-0.2,1e-9"], "'cells[0].d'"
+    else:
+        case = shared_tmp_path / "tiny.toml"
+        if COMM.rank == 0:
+            case.write_text("[geometry]\ncell_diameter = 1e-9\n")
+        COMM.Barrier()
+        args, name = ["--config", str(case)], "'cell_diameter'"
+    code = main(["run", "shear", *args, "--mesh-size", "3", "--quiet", "--no-figures", "--out", str(out)])
+    err = cli_stderr()
+    assert code == 2, err
+    assert f"parameter {name} = 1e-09 is outside its allowed range [0.000611155, inf)" in err, err
+    assert "π d / n_cell_edges" in err and err.count("error:") == 1, err
+    assert not out.exists()
+
+
 @pytest.mark.skip_in_parallel
 def test_case_file_names_the_geometry_relative_to_itself(tmp_path):
     from gelcell.case import CaseParameters

@@ -47,7 +47,7 @@ from gelcell.case.casefile import read_case_file
 from gelcell.case.devices import FileGeometry, NormalGeometry, ShearGeometry
 from gelcell.case.materials import CellMaterial, Dimensional, Physics
 from gelcell.case.meshsizes import MeshSizes
-from gelcell.case.ranges import check_range, raise_problems
+from gelcell.case.ranges import check_range, format_value, out_of_range, raise_problems, range_text
 from gelcell.errors import ParameterError
 
 __all__ = ["CaseParameters", "CASES", "ALL_CASES", "KINEMATICS", "GAMMA2", "DEFAULT_GAMMA2", "REPORT_UNITS",
@@ -76,6 +76,10 @@ REPORT_UNITS = {"length": ("µm", 1e6), "displacement": ("µm", 1e6),
 CASE_TABLES = ("case", "physics", "dimensional", "cell", "geometry", "mesh")
 RUN_TABLES = ("solver", "coupling", "time", "output", "sweep")
 _GEOMETRY = {"shear": ShearGeometry, "normal": NormalGeometry, "file": FileGeometry}
+#: A built-in device's cell element size (π d / n_cell_edges) must be at least this share of the far-field
+#: size min(h_fluid, h_gel) (both scale with size_factor): far below it gmsh cannot grade the mesh from the cell
+#: to the far field, and it aborts the process (a cell of diameter 1e-9 L0 is below its geometric tolerance).
+MIN_CELL_SIZE_RATIO = 1e-3
 
 
 def _field_names(cls) -> list[str]:
@@ -146,8 +150,24 @@ class CaseParameters:
             return                  # its walls and cells are checked when the file is read (gelcell.geometry)
         problems = self.geometry.wall_problems(self.element_sizes()["h_layer"])
         if self.with_cell:
+            problems += self._cell_size_problems()
+            raise_problems(problems)
             problems += self.geometry.placement_problems(self.element_sizes()["h_cell"])
         raise_problems(problems)
+
+    def _cell_size_problems(self) -> list[str]:
+        """Every cell of a built-in device large enough for its mesh: π d / n_cell_edges at least
+        MIN_CELL_SIZE_RATIO x min(h_fluid, h_gel)."""
+        m = self.mesh
+        far = min(m.h_fluid, m.h_gel)
+        d_min = MIN_CELL_SIZE_RATIO * far * m.n_cell_edges / math.pi
+        why = (f"a cell's element size π d / n_cell_edges (n_cell_edges = {m.n_cell_edges}) must be at least "
+               f"{MIN_CELL_SIZE_RATIO:g} x the far-field element size min(h_fluid, h_gel) = {format_value(far)}, "
+               f"so that gmsh can grade the mesh from the cell to the far field")
+        cells = self.geometry.cell_list()
+        names = [f"cells[{k}].d" for k in range(len(cells))] if self.geometry.cells else ["cell_diameter"]
+        return [out_of_range(name, d, range_text(d_min, math.inf, lo_closed=True), why=why)
+                for name, (_, _, d) in zip(names, cells) if not d >= d_min]
 
     # ----------------------------------------------------------- constructors
     @classmethod
