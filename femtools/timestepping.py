@@ -120,6 +120,24 @@ class RateHistory:
         return {"past_0": self.past[0].x.array.copy(), "past_1": self.past[1].x.array.copy(),
                 "length": np.array(self.length)}
 
+    def step_state(self) -> np.ndarray:
+        """The step in use: ``[dt, a0, a1, a2]``, or an empty array when steady (for a checkpoint)."""
+        if self.step is None:
+            return np.empty(0)
+        return np.array([self.step["dt"], *self.step["a"]], dtype=float)
+
+    def load_step(self, values) -> None:
+        """Use the step of :meth:`step_state` again (the rate of the state it was saved with)."""
+        values = np.asarray(values, dtype=float).ravel()
+        if values.size == 0:
+            self.step = None
+        elif values.size == 4:
+            a = tuple(float(c) for c in values[1:])
+            self.step = {"dt": float(values[0]), "scheme": "be" if a[2] == 0.0 else "bdf2", "a": a}
+        else:
+            raise ValueError(f"a time step is [dt, a0, a1, a2], got {values.size} numbers")
+        self._apply()
+
     def load(self, state) -> None:
         for k, f in enumerate(self.past):
             values = np.asarray(state[f"past_{k}"], dtype=float)

@@ -633,7 +633,7 @@ class PoroelasticGelSolver(FieldSolver):
         if self.transient:
             state.update(past_0=self._canonical_u.gather(self.history.past[0].x.array),
                          past_1=self._canonical_u.gather(self.history.past[1].x.array),
-                         length=np.array(self.history.length))
+                         length=np.array(self.history.length), step=self.history.step_state())
         return state
 
     def load_checkpoint_state(self, state: typing.Mapping[str, np.ndarray]) -> None:
@@ -643,6 +643,12 @@ class PoroelasticGelSolver(FieldSolver):
         if self.transient:
             local = {f"past_{k}": self._canonical_u.scatter(state[f"past_{k}"]) for k in (0, 1)}
             self.history.load({**local, "length": state["length"]})
+            if "step" in state:
+                # v_s of the saved state is that of its step: a run resumed after its last window
+                # reports the quantities (interstitial speed, tractions) of that window
+                self.history.load_step(state["step"])
+                self._newton.invalidate_jacobian()
+                self._jacobian_cache = None
             self._update_velocity()
 
     def set_state(self, state: typing.Mapping[str, np.ndarray]) -> None:

@@ -13,6 +13,7 @@ import os
 import signal
 import subprocess
 import sys
+import textwrap
 
 import h5py
 import numpy as np
@@ -279,3 +280,48 @@ def test_time_scales_follow_the_model():
     # the physical time does not depend on the flow speed
     assert p.to_si(a["consolidation"], "time") == pytest.approx(
         p.with_ca(2 * p.physics.ca).to_si(b["consolidation"], "time"), rel=1e-12)
+
+
+@pytest.mark.skip_in_parallel
+def test_sigterm_while_writing_the_results_then_resume_gives_the_same_summary(tmp_path):
+    """SIGTERM after the last window, while the results are written: DIR.partial/ keeps the last window's
+    checkpoint; --resume DIR solves nothing and writes the summary of that window (issue 28 item 7: the
+    rate of the gel's displacement, hence v_f and the tractions, came from a steady state)."""
+    p = case("shear")
+    common = ["run", "shear", "--transient", "--mesh-size", "3", "--dt", repr(tau(p) / 10), "--t-end",
+              repr(3 * tau(p) / 10), "--no-figures", "--quiet"]
+    ref = gelcell(*common, "--out", str(tmp_path / "ref"))
+    assert ref.wait(timeout=600) == 0, ref.stdout.read()
+    out = tmp_path / "res"
+    script = textwrap.dedent(f"""
+        import os, signal, sys
+        import gelcell.run.transient_case as case_module
+        from gelcell.cli import main
+        write_timeseries = case_module.write_timeseries
+        def killed_while_writing(*args, **kwargs):
+            os.kill(os.getpid(), signal.SIGTERM)
+            return write_timeseries(*args, **kwargs)
+        case_module.write_timeseries = killed_while_writing
+        sys.exit(main({common + ["--out", str(out)]!r}))
+    """)
+    killed = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600,
+                            env=dict(os.environ, MPLBACKEND="Agg"))
+    assert killed.returncode == 143, killed.stderr
+    assert "interrupted by SIGTERM" in killed.stderr
+    assert (tmp_path / "res.partial" / "checkpoint.npz").is_file() and not out.exists()
+    resumed = gelcell("run", "--resume", str(out), "--quiet")
+    text, _ = resumed.communicate(timeout=600)
+    assert resumed.returncode == 0, text
+    with open(out / "summary.json") as fh:
+        summary = json.load(fh)
+    with open(tmp_path / "ref" / "summary.json") as fh:
+        reference = json.load(fh)
+    last = {c: v[-1] for c, v in read_series(out).items()}
+    assert summary["transient"]["windows"] == reference["transient"]["windows"] == 3
+    for table, key, column in [("gel_quantities", "max_interstitial_speed", "max_interstitial_speed"),
+                               ("gel_quantities", "max_network_displacement", "max_network_displacement"),
+                               ("cell_quantities", "max_displacement", "max_cell_displacement")]:
+        assert summary[table][key] == pytest.approx(last[column], rel=1e-9), (key, summary[table][key], last)
+        assert summary[table][key] == pytest.approx(reference[table][key], rel=1e-9), key
+    traction = summary["cell_quantities"]["max_traction_von_mises"]
+    assert traction == pytest.approx(reference["cell_quantities"]["max_traction_von_mises"], rel=1e-9)

@@ -164,7 +164,7 @@ class MonolithicBackend:
         history = self.solver.history
         state = {"format": "gelcell-monolithic-checkpoint", "fields": mixed.gather(self.solver.w.x.array),
                  "past": [order_u.gather(f.x.array) for f in history.past], "length": history.length,
-                 "times": self.clock.state(), "extra": extra}
+                 "step": history.step_state(), "times": self.clock.state(), "extra": extra}
         if self.comm.rank == 0:
             save_npz(f"{path}.tmp", state)
             os.replace(f"{path}.tmp", path)
@@ -178,6 +178,9 @@ class MonolithicBackend:
         mixed.scatter(state["fields"], self.solver.w.x.array)
         self.solver.history.load({"past_0": order_u.scatter(state["past"][0]),
                                   "past_1": order_u.scatter(state["past"][1]), "length": state["length"]})
+        if "step" in state:              # the rate of the saved state (v_f of a run resumed after its last window)
+            self.solver.history.load_step(state["step"])
+            self.solver.newton.invalidate_jacobian()
         self.clock.load(state["times"])
         return state["extra"]
 
