@@ -8,6 +8,8 @@ Safety rules of :func:`atomic_directory` (checked up front by
   or an empty directory.  It refuses an empty path, the current directory
   or one containing it, an existing file, a symbolic link, a non-empty
   directory without the marker, and a parent it cannot write in.
+* It refuses an output directory holding a file the run reads (``inputs``:
+  its case file, geometry file, inflow table), which replacing it would delete.
 * New results go to a temporary sibling ``.tmp-<name>-*``.  When every rank
   has finished, the old directory is renamed aside (``.old-<name>-*``), the
   new one renamed in, and only then the old one deleted: a failure leaves
@@ -104,7 +106,23 @@ def _target_problem(full: str, shown: str, empty_ok: bool) -> str | None:
             f"delete that directory yourself")
 
 
-def _refusal(path, partial: bool) -> str | None:
+def _input_problem(full: str, shown: str, partial: bool, inputs) -> str | None:
+    """Why replacing ``full`` (or promoting ``full.partial``) would delete one of the run's ``inputs``."""
+    replaced = [os.path.realpath(full)] + ([os.path.realpath(full + PARTIAL_SUFFIX)] if partial else [])
+    for what, name in inputs:
+        if not name:
+            continue
+        real = os.path.realpath(os.fspath(name))
+        for directory in replaced:
+            if os.path.commonpath([real, directory]) == directory:
+                inside = shown if directory == replaced[0] else shown.rstrip(os.sep) + PARTIAL_SUFFIX
+                return (f"the output directory {inside!r} contains an input of this run, {os.fspath(name)!r} "
+                        f"({what}): gelcell replaces its output directory as a whole, which would delete "
+                        f"it; move the input out of {inside!r} or choose another --out")
+    return None
+
+
+def _refusal(path, partial: bool, inputs=()) -> str | None:
     """Why ``path`` may not be used as an output directory (None if it may)."""
     if path is None or not os.fspath(path).strip():
         return ("the output directory is an empty string: give a directory, e.g. --out results/run1 "
@@ -116,6 +134,9 @@ def _refusal(path, partial: bool) -> str | None:
         return (f"the output directory {shown!r} is the current directory or contains it: gelcell "
                 f"replaces its output directory as a whole; give a new subdirectory, "
                 f"e.g. --out {os.path.join(shown, 'results')}")
+    problem = _input_problem(full, shown, partial, inputs)
+    if problem is not None:
+        return problem
     problem = _target_problem(full, shown, empty_ok=True)
     if problem is None and partial:
         # the checkpoint directory of an interrupted run is reused only if gelcell made it
@@ -149,12 +170,16 @@ def _on_rank0(comm: MPI.Comm, action: typing.Callable[[], typing.Any]):
     return result
 
 
-def check_output_target(path, comm: MPI.Comm = MPI.COMM_WORLD, partial: bool = False) -> str:
+def check_output_target(path, comm: MPI.Comm = MPI.COMM_WORLD, partial: bool = False,
+                        inputs: typing.Iterable[tuple[str, typing.Any]] = ()) -> str:
     """Raise :class:`OutputError` unless ``path`` may be written by :func:`atomic_directory`.
 
-    Call it before any meshing or solving.  Returns the absolute path.
+    Call it before any meshing or solving.  ``inputs`` are ``(what, path)`` of
+    the files the run reads (e.g. ``("--config", "case.toml")``): none may lie
+    in the directories the run replaces.  Returns the absolute path.
     """
-    problem = _on_rank0(comm, lambda: _refusal(path, partial))
+    inputs = list(inputs)
+    problem = _on_rank0(comm, lambda: _refusal(path, partial, inputs))
     if problem is not None:
         raise OutputError(problem)
     return os.path.abspath(os.fspath(path))

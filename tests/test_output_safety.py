@@ -309,3 +309,69 @@ def test_cli_sigterm_while_writing_leaves_nothing_behind(old_results):
     assert "interrupted by SIGTERM" in one_error_line(proc)
     assert sorted(os.listdir(out)) == files and read(out) == text
     assert leftovers(out.parent) == []
+
+
+# ------------------------------------------------------------------ issue 28
+GEOMETRY = os.path.join(os.path.dirname(os.path.abspath(__file__)), "geometry_files", "small.geo")
+
+
+def cli_main(*args) -> int:
+    from gelcell import cli
+    return cli.main(list(args))
+
+
+def shared_output(shared_tmp_path, comm, name="D") -> str:
+    """A gelcell output directory (its marker, result.txt), the same on every rank."""
+    out = shared_tmp_path / name
+    if comm.rank == 0:
+        make_output(out, "old")
+    comm.Barrier()
+    return str(out)
+
+
+INPUTS = {
+    "config": (["run", "shear", "--config", "{D}/case.toml"], "case.toml", "[mesh]\nsize_factor = 3\n"),
+    "config-below": (["run", "shear", "--config", "{D}/inputs/case.toml"], "inputs/case.toml",
+                     "[mesh]\nsize_factor = 3\n"),
+    "geometry": (["run", "--geometry", "{D}/device.geo", "--mesh-size", "3"], "device.geo", None),
+    "inflow": (["run", "shear", "--transient", "--mesh-size", "3", "--t-end", "1e-7", "--inflow",
+                "table:{D}/pump.csv"], "pump.csv", "t,f\n0,0\n1e-6,1\n"),
+    "sweep": (["sweep", "shear", "--param", "ca", "--values", "1e-3", "2e-3", "--config", "{D}/case.toml"],
+              "case.toml", "[mesh]\nsize_factor = 3\n"),
+}
+
+
+@pytest.mark.parametrize("kind", list(INPUTS))
+def test_an_output_directory_holding_an_input_of_the_run_is_refused(shared_tmp_path, comm, cli_stderr, kind):
+    """Issue 28 item 5: --out D with --config D/case.toml (or a geometry file, an inflow table, a sweep's
+    case file) in D would delete the input when D is replaced: exit 3 before meshing, nothing deleted."""
+    out = shared_output(shared_tmp_path, comm)
+    args, name, text = INPUTS[kind]
+    path = os.path.join(out, name)
+    if comm.rank == 0:
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        if text is None:
+            shutil.copy(GEOMETRY, path)
+        else:
+            with open(path, "w") as f:
+                f.write(text)
+    comm.Barrier()
+    before = sorted(os.listdir(out))
+    extra = [] if args[0] == "sweep" else ["--no-figures"]
+    assert cli_main(*[a.format(D=out) for a in args], *extra, "--quiet", "--out", out) == 3
+    err = cli_stderr()
+    assert "contains an input of this run" in err and name.split("/")[-1] in err, err
+    assert sorted(os.listdir(out)) == before and read(out) == "old" and os.path.isfile(path)
+    assert not os.path.exists(out + fio.PARTIAL_SUFFIX)
+
+
+def test_an_input_next_to_the_output_directory_is_accepted(tmp_path):
+    (tmp_path / "case.toml").write_text("[mesh]\nsize_factor = 3\n")
+    inputs = [("--config", str(tmp_path / "case.toml"))]
+    assert check_output_target(str(tmp_path / "run"), SELF, partial=True, inputs=inputs)
+    os.symlink(tmp_path / "run", tmp_path / "link-to-run")
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "pump.csv").write_text("t,f\n0,0\n1,1\n")
+    with pytest.raises(OutputError, match="contains an input"):       # through a link into the directory
+        check_output_target(str(tmp_path / "run"), SELF, inputs=[("--inflow table", str(tmp_path / "link-to-run"
+                                                                                        / "pump.csv"))])

@@ -40,13 +40,28 @@ def run_config(args: argparse.Namespace) -> RunConfig:
     return load_run_config(args.config, keys)
 
 
-def _check_before_meshing(cases, out: str, partial: bool = False) -> None:
-    """Model limits of every case, then the output directory (raise before anything is meshed)."""
+def _inputs(cases, config: RunConfig | None = None, config_file: str | None = None) -> list[tuple[str, str]]:
+    """``(what, path)`` of every file the run reads: its ``--config``, geometry files and inflow table."""
+    inputs = [("--config", config_file)] if config_file else []
+    for params in cases:
+        if params.case == "file":
+            inputs.append(("--geometry", params.geometry.file))
+    if config is not None and config.time.inflow.startswith("table:"):
+        inputs.append(("--inflow table", config.time.inflow.partition(":")[2]))
+    return inputs
+
+
+def _check_before_meshing(cases, out: str, partial: bool = False, inputs=()) -> None:
+    """Model limits of every case, then the output directory (raise before anything is meshed).
+
+    ``inputs`` (:func:`_inputs`): the files the run reads, none of which may lie in ``out``.
+    """
     from femtools.io import check_output_target
     from gelcell.post.validity import check_case
+    cases = list(cases)
     for params in cases:
         check_case(params)
-    check_output_target(out, MPI.COMM_WORLD, partial)
+    check_output_target(out, MPI.COMM_WORLD, partial, inputs)
 
 
 def _check_coupling(config: RunConfig, transient: bool = False) -> None:
@@ -92,7 +107,7 @@ def _mesh_line(params: CaseParameters, meshes, comm) -> str:
 
 def cmd_mesh(args: argparse.Namespace) -> int:
     params = run_config(args).case                     # validated before any meshing
-    _check_before_meshing([params], args.out)
+    _check_before_meshing([params], args.out, inputs=_inputs([params], config_file=args.config))
     from femtools.io import atomic_directory, write_json
     from gelcell.geometry.meshes import build_meshes
     comm = MPI.COMM_WORLD
@@ -134,7 +149,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     _time_keys_need_transient(command_line_keys(args), config)
     transient = config.time.transient
     _check_coupling(config, transient)
-    _check_before_meshing([config.case], args.out, partial=transient)
+    _check_before_meshing([config.case], args.out, partial=transient,
+                          inputs=_inputs([config.case], config, args.config))
     if transient:
         from gelcell.run.transient_case import run_transient_case
         run_transient_case(config, args.out, comm=MPI.COMM_WORLD)
@@ -180,7 +196,8 @@ def cmd_resume(args: argparse.Namespace) -> int:
         check_resume(stored, given, groups, args.resume)
     config = resolve(tables, {k: v for k, v in keys.items() if k.startswith("output.")}, source=source)
     check_checkpoint(args.resume, MPI.COMM_WORLD)
-    _check_before_meshing([config.case], args.resume, partial=True)
+    _check_before_meshing([config.case], args.resume, partial=True,
+                          inputs=_inputs([config.case], config, args.config))
     run_transient_case(config, args.resume, comm=MPI.COMM_WORLD, resume=True)
     return 0
 
@@ -191,7 +208,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from gelcell.run.sweep import run_sweep, sweep_cases
     cases = sweep_cases(config)                     # every value validated first
     _check_coupling(config)
-    _check_before_meshing(cases, args.out)
+    _check_before_meshing(cases, args.out, inputs=_inputs(cases, config, args.config))
     run_sweep(config, args.out, comm=MPI.COMM_WORLD, debug=args.debug)
     return 0
 
@@ -205,7 +222,8 @@ def cmd_study(args: argparse.Namespace) -> int:
     if args.update_table:
         check_study_table(args.update_table)          # before the study runs, not after it
     mesh_size = study_mesh_size(args.quick, args.mesh_size)
-    _check_before_meshing([c.parameters(mesh_size) for c in study_cases(args.quick)], args.out)
+    _check_before_meshing([c.parameters(mesh_size) for c in study_cases(args.quick)], args.out,
+                          inputs=[("--update-table", args.update_table)] if args.update_table else [])
     study = run_study(args.out, quick=args.quick, mesh_size=mesh_size, max_iterations=args.max_iterations)
     if MPI.COMM_WORLD.rank == 0:
         print(study["table"])
