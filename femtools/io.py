@@ -10,6 +10,8 @@ Safety rules of :func:`atomic_directory` (checked up front by
   directory without the marker, and a parent it cannot write in.
 * It refuses an output directory holding a file the run reads (``inputs``:
   its case file, geometry file, inflow table), which replacing it would delete.
+* It refuses a name too long for the file system, counting the longest name
+  made from it (``.tmp-<name>-XXXXXXXX``), before anything is solved.
 * New results go to a temporary sibling ``.tmp-<name>-*``.  When every rank
   has finished, the old directory is renamed aside (``.old-<name>-*``), the
   new one renamed in, and only then the old one deleted: a failure leaves
@@ -106,6 +108,43 @@ def _target_problem(full: str, shown: str, empty_ok: bool) -> str | None:
             f"delete that directory yourself")
 
 
+#: the longest name made from an output directory's: ``.old-<name>-`` and mkdtemp's 8 characters
+_SIBLING_EXTRA = len(".old-") + len("-") + 8
+
+
+def _name_problem(full: str, shown: str, existing: str) -> str | None:
+    """Why a name made from ``full`` is too long for the file system (None if none is).
+
+    Checked: every directory still to be created, the directory itself and the
+    names gelcell derives from it (``.tmp-<name>-*``, ``.old-<name>-*``,
+    ``<name>.partial``), against the limits of the file system of ``existing``.
+    """
+    try:
+        name_max = os.pathconf(existing, "PC_NAME_MAX")
+        path_max = os.pathconf(existing, "PC_PATH_MAX")
+    except (OSError, ValueError):
+        name_max, path_max = 255, 4096
+    extra = max(_SIBLING_EXTRA, len(PARTIAL_SUFFIX))
+    length = len(os.fsencode(os.path.basename(full)))
+    if length + extra > name_max:
+        name = os.path.basename(full)
+        return (f"the name of the output directory {name[:24] + '...' + name[-8:]!r} is too long ({length} "
+                f"bytes): gelcell writes "
+                f"'.tmp-<name>-XXXXXXXX' and '<name>{PARTIAL_SUFFIX}' next to it, {length + extra} bytes, and "
+                f"the file system allows {name_max}; choose a name of at most {name_max - extra} bytes")
+    part = full
+    while part != existing and part != os.path.dirname(part):
+        if len(os.fsencode(os.path.basename(part))) > name_max:
+            return (f"cannot create the output directory: the directory name {os.path.basename(part)[:24] + '...'!r} "
+                    f"is too long ({len(os.fsencode(os.path.basename(part)))} bytes; the file system allows "
+                    f"{name_max}); choose a shorter --out")
+        part = os.path.dirname(part)
+    if len(os.fsencode(full)) + _SIBLING_EXTRA + 64 > path_max:
+        return (f"the output directory {shown!r} is too long a path ({len(os.fsencode(full))} bytes; "
+                f"the file system allows {path_max} for a file in it); choose a shorter --out")
+    return None
+
+
 def _input_problem(full: str, shown: str, partial: bool, inputs) -> str | None:
     """Why replacing ``full`` (or promoting ``full.partial``) would delete one of the run's ``inputs``."""
     replaced = [os.path.realpath(full)] + ([os.path.realpath(full + PARTIAL_SUFFIX)] if partial else [])
@@ -148,6 +187,9 @@ def _refusal(path, partial: bool, inputs=()) -> str | None:
         existing = os.path.dirname(existing)
     if not os.path.isdir(existing):
         return f"cannot create {shown!r}: {existing!r} is a file, not a directory; choose another --out"
+    problem = _name_problem(full, shown, existing)
+    if problem is not None:
+        return problem
     try:        # the real test of writability (os.access is always true for root)
         os.rmdir(tempfile.mkdtemp(prefix=".gelcell-probe-", dir=existing))
     except OSError as exc:

@@ -375,3 +375,20 @@ def test_an_input_next_to_the_output_directory_is_accepted(tmp_path):
     with pytest.raises(OutputError, match="contains an input"):       # through a link into the directory
         check_output_target(str(tmp_path / "run"), SELF, inputs=[("--inflow table", str(tmp_path / "link-to-run"
                                                                                         / "pump.csv"))])
+
+
+def test_a_too_long_output_name_is_refused_before_meshing(shared_tmp_path, comm, cli_stderr):
+    """Issue 28 item 13: a name that fits but whose temporary sibling (.tmp-<name>-XXXXXXXX) does not is
+    refused up front (exit 3), not after the case is solved; a name of the longest allowed length passes."""
+    name_max = os.pathconf(str(shared_tmp_path), "PC_NAME_MAX")
+    for partial in (False, True):
+        with pytest.raises(OutputError, match="too long"):
+            check_output_target(str(shared_tmp_path / ("r" * (name_max - 10))), SELF, partial=partial)
+        check_output_target(str(shared_tmp_path / ("r" * (name_max - 14))), SELF, partial=partial)
+    with pytest.raises(OutputError, match="too long"):          # a directory still to be created
+        check_output_target(str(shared_tmp_path / ("d" * (name_max + 1)) / "run"), SELF)
+    out = shared_tmp_path / ("a" * 245)
+    assert cli_main("run", "shear", "--mesh-size", "3", "--no-figures", "--quiet", "--out", str(out)) == 3
+    err = cli_stderr()
+    assert "too long (245 bytes)" in err and f"at most {name_max - 14} bytes" in err, err
+    assert not out.exists() and leftovers(shared_tmp_path) == []
