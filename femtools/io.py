@@ -12,6 +12,7 @@ Safety rules of :func:`atomic_directory` (checked up front by
   its case file, geometry file, inflow table), which replacing it would delete.
 * It refuses a name too long for the file system, counting the longest name
   made from it (``.tmp-<name>-XXXXXXXX``), before anything is solved.
+* It refuses ``<path>.partial`` itself: that is an interrupted run's checkpoint.
 * New results go to a temporary sibling ``.tmp-<name>-*``.  When every rank
   has finished, the old directory is renamed aside (``.old-<name>-*``), the
   new one renamed in, and only then the old one deleted: a failure leaves
@@ -145,6 +146,13 @@ def _name_problem(full: str, shown: str, existing: str) -> str | None:
     return None
 
 
+def _run_of_partial(full: str) -> str | None:
+    """The output directory whose time-dependent run works in ``full`` (None if ``full`` is not one)."""
+    if not full.endswith(PARTIAL_SUFFIX) or len(full) == len(PARTIAL_SUFFIX) or not is_gelcell_output(full):
+        return None
+    return full[:-len(PARTIAL_SUFFIX)]
+
+
 def _input_problem(full: str, shown: str, partial: bool, inputs) -> str | None:
     """Why replacing ``full`` (or promoting ``full.partial``) would delete one of the run's ``inputs``."""
     replaced = [os.path.realpath(full)] + ([os.path.realpath(full + PARTIAL_SUFFIX)] if partial else [])
@@ -173,6 +181,11 @@ def _refusal(path, partial: bool, inputs=()) -> str | None:
         return (f"the output directory {shown!r} is the current directory or contains it: gelcell "
                 f"replaces its output directory as a whole; give a new subdirectory, "
                 f"e.g. --out {os.path.join(shown, 'results')}")
+    if _run_of_partial(full) is not None:
+        run = shown.rstrip(os.sep)[:-len(PARTIAL_SUFFIX)]
+        return (f"{shown!r} is the working directory (checkpoint) of the interrupted time-dependent run "
+                f"whose --out was {run!r}: gelcell does not replace it; continue that run with "
+                f"'gelcell run --resume {run}', or delete {shown!r} yourself, or choose another --out")
     problem = _input_problem(full, shown, partial, inputs)
     if problem is not None:
         return problem

@@ -392,3 +392,21 @@ def test_a_too_long_output_name_is_refused_before_meshing(shared_tmp_path, comm,
     err = cli_stderr()
     assert "too long (245 bytes)" in err and f"at most {name_max - 14} bytes" in err, err
     assert not out.exists() and leftovers(shared_tmp_path) == []
+
+
+def test_the_working_directory_of_an_interrupted_run_is_not_an_output(shared_tmp_path, comm, cli_stderr):
+    """Issue 28 item 16: --out B.partial (an interrupted run's checkpoint) is refused, naming run B."""
+    partial = shared_tmp_path / ("B" + fio.PARTIAL_SUFFIX)
+    if comm.rank == 0:
+        with pytest.raises(RuntimeError):
+            with atomic_directory(str(shared_tmp_path / "B"), SELF, partial=True) as work:
+                open(os.path.join(work, "checkpoint.npz"), "w").write("window 7")
+                raise RuntimeError("interrupted")
+    comm.Barrier()
+    for out in (str(partial), str(partial) + os.sep):
+        assert cli_main("run", "shear", "--mesh-size", "3", "--no-figures", "--quiet", "--out", out) == 3
+        err = cli_stderr()
+        assert "working directory (checkpoint) of the interrupted time-dependent run" in err, err
+        assert f"--resume {shared_tmp_path / 'B'}" in err, err
+    assert (partial / "checkpoint.npz").read_text() == "window 7"
+    assert not os.path.exists(str(partial) + fio.PARTIAL_SUFFIX)
