@@ -13,6 +13,9 @@ Safety rules of :func:`atomic_directory` (checked up front by
 * It refuses a name too long for the file system, counting the longest name
   made from it (``.tmp-<name>-XXXXXXXX``), before anything is solved.
 * It refuses ``<path>.partial`` itself: that is an interrupted run's checkpoint.
+* A time-dependent run holds an flock on its ``<path>.partial`` while it works
+  in it (rank 0; :data:`LOCK_INFO` in it names the process): a second run on
+  ``path`` is refused, naming the holder.
 * New results go to a temporary sibling ``.tmp-<name>-*``.  When every rank
   has finished, the old directory is renamed aside (``.old-<name>-*``), the
   new one renamed in, and only then the old one deleted: a failure leaves
@@ -35,12 +38,15 @@ from __future__ import annotations
 
 import contextlib
 import datetime
+import errno
+import fcntl
 import json
 import logging
 import os
 import shlex
 import shutil
 import signal
+import socket
 import sys
 import tempfile
 import threading
@@ -51,7 +57,7 @@ from mpi4py import MPI
 from femtools.errors import OutputError
 
 __all__ = ["atomic_path", "write_json", "atomic_directory", "check_output_target", "OutputError",
-           "MARKER", "PARTIAL_SUFFIX", "is_gelcell_output", "deferred_signals"]
+           "MARKER", "PARTIAL_SUFFIX", "LOCK_INFO", "is_gelcell_output", "deferred_signals"]
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +65,8 @@ log = logging.getLogger(__name__)
 MARKER = ".gelcell-output"
 #: Suffix of the working directory of ``atomic_directory(..., partial=True)``
 PARTIAL_SUFFIX = ".partial"
+#: In ``<path>.partial`` while a run works in it (which holds an flock on that directory): who it is
+LOCK_INFO = ".gelcell-lock"
 _TOOL = "gelcell"
 
 
@@ -90,6 +98,56 @@ def is_gelcell_output(path: str) -> bool:
     except (OSError, ValueError):
         return False
     return isinstance(info, dict) and info.get("tool") == _TOOL
+
+
+# --------------------------------------------------------------------------- the working directory's lock
+def _holder(directory: str) -> str:
+    """Who holds the lock of ``directory``, from its :data:`LOCK_INFO` (what is known of it)."""
+    try:
+        with open(os.path.join(directory, LOCK_INFO), encoding="utf-8") as f:
+            info = json.load(f)
+        return f"pid {info['pid']} on {info['host']}, since {info['created']}: {info['command']}"
+    except (OSError, ValueError, KeyError, TypeError):
+        return "another gelcell process"
+
+
+def _in_use(directory: str, shown: str) -> str:
+    return (f"{shown!r} is in use by another gelcell run ({_holder(directory)}): two runs cannot share one "
+            f"--out; wait until it has finished (or stop it), or choose another --out")
+
+
+def _lock(directory: str) -> int | None:
+    """An open descriptor of ``directory`` holding its exclusive flock, or None if another process holds it."""
+    fd = os.open(directory, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as exc:
+        os.close(fd)
+        if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+            return None
+        raise
+    return fd
+
+
+def _lock_problem(directory: str, shown: str) -> str | None:
+    """Why ``directory`` (an existing ``<path>.partial``) cannot be used now: another run holds it."""
+    if not os.path.isdir(directory) or os.path.islink(directory):
+        return None
+    try:
+        fd = _lock(directory)
+    except OSError:
+        return None                 # cannot be opened: the other checks say why
+    if fd is None:
+        return _in_use(directory, shown)
+    os.close(fd)                    # releases the lock
+    return None
+
+
+def _release(fd: int, directory: str) -> None:
+    """Remove the holder's :data:`LOCK_INFO` from ``directory`` (if it is still there), then unlock."""
+    with contextlib.suppress(OSError):
+        os.remove(os.path.join(directory, LOCK_INFO))
+    os.close(fd)
 
 
 # --------------------------------------------------------------------------- checks
@@ -189,10 +247,13 @@ def _refusal(path, partial: bool, inputs=()) -> str | None:
     problem = _input_problem(full, shown, partial, inputs)
     if problem is not None:
         return problem
-    problem = _target_problem(full, shown, empty_ok=True)
+    # a time-dependent run working in path.partial/ (it replaces path when it ends)
+    problem = _lock_problem(full + PARTIAL_SUFFIX, shown.rstrip(os.sep) + PARTIAL_SUFFIX)
+    if problem is None:
+        problem = _target_problem(full, shown, empty_ok=True)
     if problem is None and partial:
         # the checkpoint directory of an interrupted run is reused only if gelcell made it
-        problem = _target_problem(full + PARTIAL_SUFFIX, shown + PARTIAL_SUFFIX, empty_ok=False)
+        problem = _target_problem(full + PARTIAL_SUFFIX, shown.rstrip(os.sep) + PARTIAL_SUFFIX, empty_ok=False)
     if problem is not None:
         return problem
     existing = os.path.dirname(full)
@@ -293,19 +354,45 @@ def _promote(work: str, full: str, partial: bool) -> None:
                         "delete it yourself", old, exc)
 
 
-def _prepare(full: str, partial: bool) -> str:
-    """Create the working directory with its marker (rank 0); return its path."""
+def _prepare(full: str, partial: bool, held: list) -> tuple[str, str | None]:
+    """Create the working directory with its marker (rank 0); return its path and why it cannot be used.
+
+    ``partial``: the working directory ``full.partial`` is locked (its descriptor
+    appended to ``held``) and its :data:`LOCK_INFO` names this process.
+    """
     parent = os.path.dirname(full)
     os.makedirs(parent, exist_ok=True)
-    if partial:
-        work = full + PARTIAL_SUFFIX
-        if not os.path.isdir(work):
+    if not partial:
+        work = tempfile.mkdtemp(prefix=f".tmp-{os.path.basename(full)}-", dir=parent)
+        _write_marker(work)
+        return work, None
+    work = full + PARTIAL_SUFFIX
+    for _ in range(3):                  # another run may rename it (promote) between mkdir and flock
+        with contextlib.suppress(FileExistsError):
             os.mkdir(work)
+        fd = _lock(work)
+        if fd is None:
+            return work, _in_use(work, work)
+        try:
+            same = os.path.samestat(os.fstat(fd), os.stat(work))
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    else:
+        return work, f"{work!r} was replaced by another gelcell run three times while this one started; retry"
+    held.append(fd)
+    try:
+        if not is_gelcell_output(work):
             _write_marker(work)
-        return work
-    work = tempfile.mkdtemp(prefix=f".tmp-{os.path.basename(full)}-", dir=parent)
-    _write_marker(work)
-    return work
+        info = {**_marker_info(), "pid": os.getpid(), "host": socket.gethostname()}
+        with open(os.path.join(work, LOCK_INFO), "w", encoding="utf-8") as f:
+            f.write(_json_text(info))
+    except BaseException:
+        _release(held.pop(), work)
+        raise
+    return work, None
 
 
 @contextlib.contextmanager
@@ -322,18 +409,28 @@ def atomic_directory(path, comm: MPI.Comm = MPI.COMM_WORLD, partial: bool = Fals
     continues from its checkpoints) and is kept on failure.
     """
     full = check_output_target(path, comm, partial)
-    work = _on_rank0(comm, lambda: _prepare(full, partial))
+    held: list[int] = []            # rank 0: the descriptor holding the lock of full.partial
+    work, problem = _on_rank0(comm, lambda: _prepare(full, partial, held))
+    if problem is not None:
+        raise OutputError(problem)
     ok = False
     try:
         yield work
         ok = True
     finally:
         with deferred_signals():
-            ok = comm.allreduce(ok, op=MPI.LAND)
-            if ok:
-                _on_rank0(comm, lambda: _promote(work, full, partial))
-            elif not partial and comm.rank == 0:
-                shutil.rmtree(work, ignore_errors=True)
+            try:
+                ok = comm.allreduce(ok, op=MPI.LAND)
+                if held:
+                    with contextlib.suppress(OSError):
+                        os.remove(os.path.join(work, LOCK_INFO))     # not into the results
+                if ok:
+                    _on_rank0(comm, lambda: _promote(work, full, partial))
+                elif not partial and comm.rank == 0:
+                    shutil.rmtree(work, ignore_errors=True)
+            finally:
+                for fd in held:
+                    os.close(fd)            # releases the lock
 
 
 @contextlib.contextmanager

@@ -410,3 +410,49 @@ def test_the_working_directory_of_an_interrupted_run_is_not_an_output(shared_tmp
         assert f"--resume {shared_tmp_path / 'B'}" in err, err
     assert (partial / "checkpoint.npz").read_text() == "window 7"
     assert not os.path.exists(str(partial) + fio.PARTIAL_SUFFIX)
+
+
+def test_a_partial_directory_is_locked_while_a_run_works_in_it(tmp_path):
+    """Issue 28 item 8 (femtools.io): the lock of DIR.partial/ is held for the block and released after."""
+    out = str(tmp_path / "run")
+    with atomic_directory(out, SELF, partial=True) as work:
+        info = json.loads(open(os.path.join(work, fio.LOCK_INFO)).read())
+        assert info["pid"] == os.getpid()
+        fd = os.open(work, os.O_RDONLY)                 # another descriptor: another open file description
+        try:
+            with pytest.raises(BlockingIOError):
+                fio.fcntl.flock(fd, fio.fcntl.LOCK_EX | fio.fcntl.LOCK_NB)
+        finally:
+            os.close(fd)
+        open(os.path.join(work, "result.txt"), "w").write("new")
+    assert read(out) == "new" and not os.path.exists(os.path.join(out, fio.LOCK_INFO))
+    check_output_target(out, SELF, partial=True)
+
+
+@pytest.mark.skip_in_parallel
+def test_cli_a_second_run_on_the_same_out_is_refused_naming_the_first(tmp_path):
+    """Issue 28 item 8: while a time-dependent run works in DIR.partial/, a second run on DIR (new,
+    resumed or steady) exits 3 naming the first (pid, command); the first's checkpoint is intact."""
+    out = tmp_path / "run"
+    common = ["run", "shear", "--transient", "--mesh-size", "3", "--dt", "1.5e-7", "--t-end", "4.5e-7",
+              "--no-figures", "--quiet"]
+    first = paused_gelcell(common + ["--out", str(out)], target="gelcell.coupled.participants.GelParticipant.advance",
+                           call=3)
+    try:
+        for line in first.stdout:
+            if line.strip() == "PAUSED":
+                break
+        for args in (common + ["--out", str(out) + os.sep], ["run", "--resume", str(out)],
+                     ["run", "shear", "--mesh-size", "3", "--out", str(out)]):
+            proc = gelcell(*args)
+            assert proc.returncode == 3, proc.stderr
+            line = one_error_line(proc)
+            assert "is in use by another gelcell run" in line and f"pid {first.pid} " in line, line
+            assert proc.stdout == ""
+        assert sorted(os.listdir(tmp_path)) == ["run.partial"]
+        assert (tmp_path / "run.partial" / "checkpoint.npz").is_file()
+    finally:
+        first.send_signal(signal.SIGTERM)
+        first.communicate(timeout=120)
+    assert first.returncode == 143
+    assert not (tmp_path / "run.partial" / fio.LOCK_INFO).exists()
