@@ -834,6 +834,7 @@ class CouplingScheme:
                  "acceleration": self.acceleration.state_dict(),
                  "participants": participant_states, "extra": self.comm.gather(extra, root=0)}
         error: str | None = None
+        failed: tuple | None = None       # an OSError of rank 0 (e.g. a full disk), raised on every rank
         if self._is_root():
             tmp = f"{os.fspath(path)}.tmp"
             try:
@@ -842,11 +843,20 @@ class CouplingScheme:
             except TypeError as exc:
                 error = (f"save_checkpoint: a participant state cannot be saved ({exc}); pass "
                          f"include_participants=False and save participant states yourself")
+            except OSError as exc:
+                failed = (exc.errno, exc.strerror or str(exc), exc.filename or tmp)
+            if error is not None or failed is not None:
+                try:
+                    os.remove(tmp)
+                except OSError:
+                    pass
         if self.comm.Get_size() > 1:
-            error = self.comm.bcast(error, root=0)
+            error, failed = self.comm.bcast((error, failed), root=0)
         self.comm.Barrier()
         if error is not None:
             raise TypeError(error)
+        if failed is not None:
+            raise OSError(*failed)
 
     def load_checkpoint(self, path: str | os.PathLike, include_participants: bool = True) -> Any:
         """Restore a state written by :meth:`save_checkpoint` (all ranks read the file).

@@ -13,13 +13,14 @@ the project writes goes through it.
 
 from __future__ import annotations
 
+import io
 import json
 import os
 from typing import Any
 
 import numpy as np
 
-__all__ = ["save_npz", "load_npz", "to_jsonable"]
+__all__ = ["save_npz", "load_npz", "to_jsonable", "write_bytes"]
 
 _META = "__meta__"
 
@@ -69,11 +70,30 @@ def _decode(obj: Any, arrays: Any) -> Any:
 
 
 def save_npz(path: str | os.PathLike, obj: Any) -> None:
-    """Write ``obj`` to ``path`` (exactly that name; no suffix is added)."""
+    """Write ``obj`` to ``path`` (exactly that name; no suffix is added).
+
+    The archive is built in memory and written in one piece: a failed write
+    (a full disk) raises its OSError and removes the incomplete file.
+    """
     arrays: dict[str, np.ndarray] = {}
     meta = _encode(obj, arrays, "state")
-    with open(os.fspath(path), "wb") as fh:
-        np.savez(fh, **{_META: np.array(json.dumps(meta))}, **arrays)
+    buffer = io.BytesIO()
+    np.savez(buffer, **{_META: np.array(json.dumps(meta))}, **arrays)
+    write_bytes(path, buffer.getbuffer())
+
+
+def write_bytes(path: str | os.PathLike, data) -> None:
+    """Write ``data`` to ``path``; if that fails, remove the incomplete file and raise the OSError."""
+    path = os.fspath(path)
+    try:
+        with open(path, "wb") as fh:
+            fh.write(data)
+    except OSError:
+        try:
+            os.remove(path)
+        except OSError:
+            pass
+        raise
 
 
 def load_npz(path: str | os.PathLike) -> Any:

@@ -10,7 +10,7 @@ by exception type (:data:`EXIT_CODES`, first match wins):
 | 0 | success |
 | 1 | internal error (a bug: rerun with --debug and report it) |
 | 2 | bad parameters, case file, ``[coupling]`` table or command-line option (``ParameterError``) |
-| 3 | output directory refused or not writable (``OutputError``) |
+| 3 | output directory refused or not writable (``OutputError``), or the disk is full (an ``OSError`` ENOSPC, EDQUOT) |
 | 4 | model limits: Ca, cell/gel stiffness ratio, mesh too large, ``time.max_windows`` reached (``ModelLimitError``) |
 | 5 | coupling diverged (``CouplingDivergedError``) |
 | 6 | coupling did not converge in ``max_iterations`` (``CouplingNotConvergedError``) |
@@ -30,6 +30,8 @@ only under the growing interface loads.
 from __future__ import annotations
 
 import contextlib
+import errno
+import os
 import signal
 import typing
 
@@ -37,7 +39,7 @@ from coupling.errors import CouplingDivergedError, CouplingNotConvergedError
 from femtools.errors import NewtonError, OutputError, SingularSystemError
 
 __all__ = ["GelcellError", "ModelLimitError", "SweepError", "Interrupted", "EXIT_CODES", "exit_code",
-           "message", "root_cause", "install_signal_handlers", "OutputError", "SingularSystemError",
+           "message", "root_cause", "disk_full", "install_signal_handlers", "OutputError", "SingularSystemError",
            "NewtonError", "ParameterError"]
 
 
@@ -112,11 +114,20 @@ def root_cause(exc: BaseException) -> BaseException:
     return exc
 
 
+def disk_full(exc: BaseException) -> bool:
+    """True if ``exc`` is a write that failed because the file system is full (or the quota used up)."""
+    if not isinstance(exc, OSError):
+        return False
+    return exc.errno in (errno.ENOSPC, errno.EDQUOT) or os.strerror(errno.ENOSPC) in str(exc)
+
+
 def exit_code(exc: BaseException) -> int:
     """The exit status of ``gelcell`` for ``exc`` (see the table in the module docstring)."""
     if isinstance(exc, KeyboardInterrupt):
         return 128 + getattr(exc, "signum", signal.SIGINT)
     exc = root_cause(exc)
+    if disk_full(exc):
+        return dict(EXIT_CODES)[OutputError]
     for kind, code in EXIT_CODES:
         if isinstance(exc, kind):
             return code
@@ -150,6 +161,11 @@ def message(exc: BaseException) -> str:
         head = str(cause).split("; its history")[0]
         return _one_line(f"{head}: raise max_iterations in the [coupling] table of a --config file, "
                          f"or {_COUPLING_ADVICE}")
+    if disk_full(cause):
+        where = f" writing {cause.filename}" if getattr(cause, "filename", None) else ""
+        return _one_line(f"the disk is full ({os.strerror(cause.errno or errno.ENOSPC)}){where}: free space "
+                         f"there or choose an --out on another file system; an interrupted time-dependent run "
+                         f"continues from its last checkpoint with --resume DIR")
     if any(isinstance(cause, kind) for kind, _ in EXIT_CODES):
         return _one_line(cause)
     return _one_line(f"internal error: {type(exc).__name__}: {exc} (rerun with gelcell --debug ... for "

@@ -456,3 +456,46 @@ def test_cli_a_second_run_on_the_same_out_is_refused_naming_the_first(tmp_path):
         first.communicate(timeout=120)
     assert first.returncode == 143
     assert not (tmp_path / "run.partial" / fio.LOCK_INFO).exists()
+
+
+@pytest.mark.skip_in_parallel
+def test_cli_full_disk_during_a_time_dependent_run(tmp_path):
+    """Issue 28 item 11: the disk fills while the 3rd checkpoint is written (a writer that raises ENOSPC
+    after some bytes): one line saying so, exit 3, no traceback, no checkpoint.npz.tmp left behind; the
+    last complete checkpoint is kept."""
+    out = tmp_path / "run"
+    script = textwrap.dedent(f"""
+        import builtins, errno, os, sys
+        import coupling.serialization as serialization
+        from gelcell.cli import main
+        calls = [0]
+        class FullDisk:
+            def __init__(self, fh):
+                self.fh = fh
+            def write(self, data):
+                self.fh.write(bytes(data)[:100])
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+            def __enter__(self):
+                return self
+            def __exit__(self, *exc):
+                self.fh.close()
+        def full_open(path, mode="r", *args, **kwargs):
+            fh = builtins.open(path, mode, *args, **kwargs)
+            if str(path).endswith("checkpoint.npz.tmp"):
+                calls[0] += 1
+                if calls[0] == 3:
+                    return FullDisk(fh)
+            return fh
+        serialization.open = full_open
+        sys.exit(main(["run", "shear", "--transient", "--mesh-size", "3", "--dt", "1.5e-7", "--t-end", "4.5e-7",
+                       "--no-figures", "--quiet", "--out", {str(out)!r}]))
+    """)
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300,
+                          env=dict(os.environ, MPLBACKEND="Agg"))
+    assert proc.returncode == 3, proc.stderr
+    line = one_error_line(proc)
+    assert "the disk is full" in line and "checkpoint.npz.tmp" in line, line
+    partial = tmp_path / "run.partial"
+    assert sorted(os.listdir(partial)) == [MARKER, "case.toml", "checkpoint.npz", "frames"]
+    assert not [n for n in os.listdir(partial / "frames") if n.endswith(".tmp")]
+    assert not out.exists()

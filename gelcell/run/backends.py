@@ -8,6 +8,7 @@ order that does not depend on the mesh partition.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import typing
 
@@ -165,10 +166,18 @@ class MonolithicBackend:
         state = {"format": "gelcell-monolithic-checkpoint", "fields": mixed.gather(self.solver.w.x.array),
                  "past": [order_u.gather(f.x.array) for f in history.past], "length": history.length,
                  "step": history.step_state(), "times": self.clock.state(), "extra": extra}
+        failed = None                   # an OSError of rank 0 (a full disk), raised on every rank
         if self.comm.rank == 0:
-            save_npz(f"{path}.tmp", state)
-            os.replace(f"{path}.tmp", path)
-        self.comm.Barrier()
+            try:
+                save_npz(f"{path}.tmp", state)
+                os.replace(f"{path}.tmp", path)
+            except OSError as exc:
+                failed = (exc.errno, exc.strerror or str(exc), exc.filename or f"{path}.tmp")
+                with contextlib.suppress(OSError):
+                    os.remove(f"{path}.tmp")
+        failed = self.comm.bcast(failed, root=0)
+        if failed is not None:
+            raise OSError(*failed)
 
     def load(self, path: str):
         state = load_npz(path)

@@ -6,12 +6,14 @@ written into the XDMF files at its end (:mod:`gelcell.run.transient_case`).
 
 from __future__ import annotations
 
+import io
 import os
 
 import numpy as np
 
 from mpi4py import MPI
 
+from coupling.serialization import write_bytes
 from femtools.canonical import CanonicalOrder
 from gelcell.post.fields import DeviceFields
 
@@ -46,13 +48,22 @@ def _order(f) -> CanonicalOrder:
 def write_frame(directory: str, index: int, fields: DeviceFields, comm: MPI.Comm) -> None:
     """Every field in the partition-independent order, ``frame_{index:05d}.npz`` (rank 0, written whole)."""
     arrays = {k: _order(f).gather(f.x.array) for k, f in _frame_functions(fields).items()}
+    failed = None                       # an OSError of rank 0 (a full disk), raised on every rank
     if comm.rank == 0:
-        os.makedirs(directory, exist_ok=True)
         path = os.path.join(directory, f"frame_{index:05d}.npz")
-        with open(path + ".tmp", "wb") as fh:
-            np.savez(fh, **arrays)
-        os.replace(path + ".tmp", path)
-    comm.Barrier()
+        try:
+            os.makedirs(directory, exist_ok=True)
+            buffer = io.BytesIO()       # built in memory: a failed write leaves no half archive behind
+            np.savez(buffer, **arrays)
+            write_bytes(path + ".tmp", buffer.getbuffer())
+            os.replace(path + ".tmp", path)
+        except OSError as exc:
+            failed = (exc.errno, exc.strerror or str(exc), exc.filename or path + ".tmp")
+            if os.path.exists(path + ".tmp"):
+                os.remove(path + ".tmp")
+    failed = comm.bcast(failed, root=0)
+    if failed is not None:
+        raise OSError(*failed)
 
 
 def read_frame(directory: str, index: int, fields: DeviceFields, comm: MPI.Comm) -> None:
