@@ -43,7 +43,7 @@ from coupling.records import (CouplingResult, IterationRecord, RecordedSolve, Re
 from coupling.replay import ReplayResult, replay
 from coupling.schemes import (CouplingScheme, ParallelExplicitScheme, ParallelImplicitScheme,
                               SerialExplicitScheme, SerialImplicitScheme, build_scheme)
-from coupling.serialization import load_npz, save_npz, to_jsonable
+from coupling.serialization import load_npz, save_npz, to_jsonable, write_bytes
 
 __all__ = [
     # participants, data and schemes
@@ -67,5 +67,5 @@ __all__ = [
     "CouplingError", "CouplingDivergedError", "CouplingNotConvergedError",
     "CouplingResult", "IterationRecord", "WindowRecord", "Recording", "RecordedSolve",
     "format_progress", "write_records", "replay", "ReplayResult",
-    "save_npz", "load_npz", "to_jsonable",
+    "save_npz", "load_npz", "to_jsonable", "write_bytes",
 ]
