@@ -817,6 +817,18 @@ class CouplingScheme:
         file, under a temporary name first: an interrupted write never replaces
         a complete checkpoint.
         """
+        state = self._checkpoint_state(include_participants, extra)
+        error, failed = self._write_checkpoint(path, state) if self._is_root() else (None, None)
+        if self.comm.Get_size() > 1:
+            error, failed = self.comm.bcast((error, failed), root=0)
+        self.comm.Barrier()
+        if error is not None:
+            raise TypeError(error)
+        if failed is not None:
+            raise OSError(*failed)
+
+    def _checkpoint_state(self, include_participants: bool, extra: Any) -> dict:
+        """What :meth:`save_checkpoint` writes; participant states and ``extra`` gathered to rank 0 (collective)."""
         participant_states: dict[str, Any] = {}
         if include_participants:
             for name in self.order:
@@ -825,38 +837,34 @@ class CouplingScheme:
                 except NotImplementedError:
                     state = None
                 participant_states[name] = self.comm.gather(state, root=0)
-        state = {"format": _CHECKPOINT_FORMAT, "version": _CHECKPOINT_VERSION,
-                 "scheme": self.scheme_name, "time": self.time, "window": self.window,
-                 "ranks": self.comm.Get_size(), "data": list(self.data),
-                 "accelerated": list(self.accelerated),
-                 "values": {n: v.copy() for n, v in self.values.items()},
-                 "window_ends": [[t, ends] for t, ends in self.window_ends],
-                 "acceleration": self.acceleration.state_dict(),
-                 "participants": participant_states, "extra": self.comm.gather(extra, root=0)}
-        error: str | None = None
-        failed: tuple | None = None       # an OSError of rank 0 (e.g. a full disk), raised on every rank
-        if self._is_root():
-            tmp = f"{os.fspath(path)}.tmp"
-            try:
-                save_npz(tmp, state)
-                os.replace(tmp, path)
-            except TypeError as exc:
-                error = (f"save_checkpoint: a participant state cannot be saved ({exc}); pass "
-                         f"include_participants=False and save participant states yourself")
-            except OSError as exc:
-                failed = (exc.errno, exc.strerror or str(exc), exc.filename or tmp)
-            if error is not None or failed is not None:
-                try:
-                    os.remove(tmp)
-                except OSError:
-                    pass
-        if self.comm.Get_size() > 1:
-            error, failed = self.comm.bcast((error, failed), root=0)
-        self.comm.Barrier()
-        if error is not None:
-            raise TypeError(error)
-        if failed is not None:
-            raise OSError(*failed)
+        return {"format": _CHECKPOINT_FORMAT, "version": _CHECKPOINT_VERSION,
+                "scheme": self.scheme_name, "time": self.time, "window": self.window,
+                "ranks": self.comm.Get_size(), "data": list(self.data),
+                "accelerated": list(self.accelerated),
+                "values": {n: v.copy() for n, v in self.values.items()},
+                "window_ends": [[t, ends] for t, ends in self.window_ends],
+                "acceleration": self.acceleration.state_dict(),
+                "participants": participant_states, "extra": self.comm.gather(extra, root=0)}
+
+    @staticmethod
+    def _write_checkpoint(path: str | os.PathLike, state: dict) -> tuple[str | None, tuple | None]:
+        """Write ``state`` to ``path`` through a temporary file (rank 0); returns (a TypeError's message, an
+        OSError's arguments), None each when it was written; the temporary file never stays."""
+        tmp = f"{os.fspath(path)}.tmp"
+        try:
+            save_npz(tmp, state)
+            os.replace(tmp, path)
+            return None, None
+        except TypeError as exc:
+            result = (f"save_checkpoint: a participant state cannot be saved ({exc}); pass "
+                      f"include_participants=False and save participant states yourself"), None
+        except OSError as exc:           # e.g. a full disk: raised on every rank
+            result = None, (exc.errno, exc.strerror or str(exc), exc.filename or tmp)
+        try:
+            os.remove(tmp)
+        except OSError:
+            pass
+        return result
 
     def load_checkpoint(self, path: str | os.PathLike, include_participants: bool = True) -> Any:
         """Restore a state written by :meth:`save_checkpoint` (all ranks read the file).
