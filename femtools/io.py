@@ -435,19 +435,30 @@ def atomic_directory(path, comm: MPI.Comm = MPI.COMM_WORLD, partial: bool = Fals
 
 @contextlib.contextmanager
 def _commit(tmp: str, path: str, comm: MPI.Comm):
-    """Move the file ``tmp`` to ``path`` if the block succeeded on every rank, else delete it."""
+    """Move the file ``tmp`` to ``path`` if the block succeeded on every rank, else delete it.
+
+    Collective: when it returns, ``path`` is there for every rank; rank 0's
+    OSError (moving or removing) is raised on every rank.
+    """
     ok = False
     try:
         yield
         ok = True
     finally:
         ok = comm.allreduce(ok, op=MPI.LAND)
+        failed = None
         if comm.rank == 0:
-            if ok:
-                os.chmod(tmp, 0o644)         # mkstemp makes it private
-                os.replace(tmp, path)
-            elif os.path.exists(tmp):
-                os.remove(tmp)
+            try:
+                if ok:
+                    os.chmod(tmp, 0o644)         # mkstemp makes it private
+                    os.replace(tmp, path)
+                elif os.path.exists(tmp):
+                    os.remove(tmp)
+            except OSError as exc:
+                failed = (exc.errno, exc.strerror or str(exc), exc.filename or tmp)
+        failed = comm.bcast(failed, root=0)
+        if failed is not None and ok:
+            raise OSError(*failed)
 
 
 @contextlib.contextmanager
