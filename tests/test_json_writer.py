@@ -91,6 +91,7 @@ def test_the_file_is_written_once_whole_by_rank_0(shared_tmp_path, comm):
     assert data["rank"] == 0 and data["values"] == values.tolist()
     assert os.listdir(path.parent) == ["summary.json"]          # no temporary file left
     assert oct(os.stat(path).st_mode & 0o777) == oct(0o644)
+    comm.Barrier()          # every rank has listed the directory before the next write's temporary file
     # a second write replaces the file as a whole
     write_json(str(path), {"rank": comm.rank}, comm)
     comm.Barrier()
