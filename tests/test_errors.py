@@ -197,13 +197,15 @@ def _inputs(tmp_path) -> dict:
     (["run", "shear", "--transient", "--inflow", "table:{utf16_csv}"], 2, ["inflow", "not UTF-8"]),
     (["run", "--config", "{order_toml}"], 2, ["[coupling]", "order", "misses participants ['cell']"]),
     (["study", "--quick", "--update-table", "{markerless_md}"], 2, ["--update-table", "coupling-study markers"]),
+    (["study", "--quick", "--update-readme", "{markerless_md}"], 2, ["--update-table", "coupling-study markers"]),
     (["run", "shear", "--config", "/dev/zero"], 2, ["/dev/zero", "not a regular file"]),
     (["run", "shear", "--transient", "--inflow", "table:/dev/zero"], 2, ["inflow", "/dev/zero",
                                                                          "not a regular file"]),
     (["run", "shear", "--gel-moduli", "1e-12"], 4, ["1e+12 times as stiff as the gel", "[1e-06, 1e+06]"]),
     (["run", "shear", "--cell-moduli", "1e9"], 4, ["1e+09 times as stiff as the gel", "[1e-06, 1e+06]"]),
 ], ids=["binary-case-file", "utf16-case-file", "binary-table", "utf16-table", "coupling-order",
-        "update-table-markers", "config-dev-zero", "table-dev-zero", "gel-moduli-tiny", "cell-moduli-huge"])
+        "update-table-markers", "update-readme-markers", "config-dev-zero", "table-dev-zero", "gel-moduli-tiny",
+        "cell-moduli-huge"])
 def test_issue28_refused_before_meshing(tmp_path, args, code, words):
     """Items 10, 14, 15: one line and the exit code of the input's fault, before anything is meshed."""
     files = _inputs(tmp_path)

@@ -288,9 +288,9 @@ def _study_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--mesh-size", type=_number, default=None, metavar="F",
                    help="element size factor (default 3 with --quick, else 2)")
     p.add_argument("--max-iterations", type=int, default=150, metavar="N")
-    p.add_argument("--update-table", metavar="FILE.md",
+    p.add_argument("--update-table", "--update-readme", dest="update_table", metavar="FILE.md",
                    help="replace the study table between the coupling-study markers of this Markdown file "
-                        "(docs/coupling-study.md)")
+                        "(docs/coupling-study.md; --update-readme is its earlier name)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (replaced)")
     return p
 
