@@ -18,6 +18,9 @@ import numpy as np
 
 from mpi4py import MPI
 
+import basix
+import ufl
+from dolfinx import fem
 from dolfinx import mesh as dmesh
 
 from femtools.gmshimport import import_gmsh
@@ -73,7 +76,26 @@ def _generate(comm: MPI.Comm, build, h: float, order: int, dim: int = 2, refine:
         msh, _, facet_tags = model_to_mesh(gmsh.model, comm, 0, gdim=dim)
     finally:
         gmsh.finalize()
+    if dim == 3:
+        _check_not_inverted(msh, h)
     return msh, facet_tags
+
+
+def _check_not_inverted(msh, h: float) -> None:
+    """Raise ValueError if a (curved) tetrahedron has det J <= 0 at a P2 node or quadrature point.
+
+    gmsh's curving of coarse tetrahedra onto a sphere seen from inside (a hollow sphere's
+    inner face) can invert some; such a mesh gives wrong normals and integrals.
+    """
+    cell = basix.CellType.tetrahedron
+    points = np.vstack([basix.create_lattice(cell, 2, basix.LatticeType.equispaced, True),
+                        basix.make_quadrature(cell, 4)[0]])
+    detj = fem.Expression(ufl.JacobianDeterminant(msh), points)
+    cells = np.arange(msh.topology.index_map(3).size_local, dtype=np.int32)
+    local = float(detj.eval(cells).min()) if cells.size else np.inf
+    if msh.comm.allreduce(local, op=MPI.MIN) <= 0:
+        raise ValueError(f"the curved mesh of size h={h} has inverted tetrahedra (det J <= 0); "
+                         f"choose another h or order=1")
 
 
 def _classify(model, rule) -> dict[int, list[int]]:
