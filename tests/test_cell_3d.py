@@ -249,7 +249,8 @@ def test_finite_strain_sphere_against_the_radial_ode(radial_solution):
     rate = np.log(errors[0] / errors[1]) / np.log(hs[0] / hs[1])
     print(f"\nfinite-strain sphere, P = {P_F}: hoop stretch {r(A_L) / A_L:.4f} (inner), {r(B_L) / B_L:.4f} (outer); "
           f"L2 errors {errors}, rate {rate:.2f}; nodal u_r errors on the faces {faces}; "
-          f"the linear (Lame) answer is {linear_gap:.3e} off")
+          f"the linear (Lame) answer is {linear_gap:.3e} off; finer level: {s.stats['newton_iterations']} Newton "
+          f"iterations, {s.stats['factorizations']} factorisations over the 4 load steps")
     assert r(A_L) / A_L > 1.4
     assert rate >= 2.0, (rate, errors)
     assert errors[1] < 0.1 * linear_gap, (errors, linear_gap)
@@ -268,10 +269,12 @@ def quadrature_l2_of(exact, other, n=400):
 def test_interface_data_on_the_sphere():
     """Hollow sphere, free inner face, the outer sphere r = b a Dirichlet interface with Lame's
     displacement (sigma_rr(a) = 0): points (N, 3) on the sphere, displacement (N, 3) back as given,
-    nodal forces (N, 3) against the consistent nodal form of the closed-form traction, two levels."""
+    nodal forces (N, 3) against the consistent nodal form of the closed-form traction, two levels.
+    The same surface as a Robin interface given the closed-form nodal forces f* and springs towards
+    the closed-form displacement u*: its displacement output (N, 3) converges to the closed form."""
     # u = (A + B / r^3) x with sigma_rr(a) = (3 lambda + 2 mu) A - 4 mu B / a^3 = 0
     k = (1e-8, (3 * LMBDA_L + 2 * MU_L) * 1e-8 * A_L**3 / (4 * MU_L))
-    errors = []
+    errors, robin_errors = [], []
     for refine in (0, 1):
         msh, ft = meshes.shell(A_L, B_L, H_FULL, refine=refine)
         s = NeoHookeanCellSolver(msh, ft, mu=MU_L, lmbda=LMBDA_L, interfaces={"Gamma2": meshes.OUTER})
@@ -294,12 +297,20 @@ def test_interface_data_on_the_sphere():
         reference = s.interface_nodes("Gamma2").from_array(b.array)
         b.destroy()
         errors.append(np.linalg.norm(data["force"] - reference) / np.linalg.norm(reference))
+        robin = NeoHookeanCellSolver(msh, ft, mu=MU_L, lmbda=LMBDA_L,
+                                     robin_interfaces={"Gamma2": (meshes.OUTER, 10 * MU_L / B_L)})
+        robin.set_interface_data("Gamma2", displacement=g, force=reference)
+        robin.solve()
+        u_robin = robin.interface_data("Gamma2")["displacement"]
+        robin_errors.append(np.linalg.norm(u_robin - g) / np.linalg.norm(g))
         # the traction is radial and uniform: the net force vanishes by symmetry of the closed surface
         assert np.abs(data["force"].sum(axis=0)).max() < 1e-8 * np.abs(data["force"]).sum()
     sig_b = (3 * LMBDA_L + 2 * MU_L) * k[0] - 4 * MU_L * k[1] / B_L**3
     print(f"\ninterface data on r = b: N = {X.shape[0]} points; sigma_rr(b) = {sig_b:.4e}; "
-          f"nodal force errors {errors}")
+          f"nodal force errors {errors}; Robin interface displacement errors {robin_errors}")
     assert errors[1] < errors[0] / 2, errors
+    # P2: O(h^2) or better at the nodes; halving h must at least halve it
+    assert robin_errors[1] < robin_errors[0] / 2, robin_errors
 
 
 # -- 4. homogeneous finite strain on tetrahedra ----------------------------------------------
