@@ -313,6 +313,29 @@ def test_interface_data_on_the_sphere():
     assert robin_errors[1] < robin_errors[0] / 2, robin_errors
 
 
+def test_interface_stiffness_of_a_free_ball_has_the_six_rigid_modes():
+    """The ball held only on its sphere: the condensed stiffness (3N x 3N) is symmetric positive
+    semi-definite with exactly the six rigid motions as null space."""
+    msh, ft = meshes.ball(0.03, 0.015, centre=(2.0, -0.2, 0.2))
+    s = NeoHookeanCellSolver(msh, ft, mu=0.01, lmbda=0.01, interfaces={"Gamma2": meshes.BOUNDARY})
+    K = s.interface_stiffness("Gamma2")
+    X = s.interface_points("Gamma2") - np.array([2.0, -0.2, 0.2])
+    n = X.shape[0]
+    assert K.shape == (3 * n, 3 * n)
+    zero, one = np.zeros(n), np.ones(n)
+    x, y, z = X.T
+    modes = [np.column_stack(c).ravel() for c in ((one, zero, zero), (zero, one, zero), (zero, zero, one),
+                                                   (-y, x, zero), (zero, -z, y), (z, zero, -x))]
+    scale = np.abs(K).max()
+    rigid = max(np.abs(K @ m).max() / (np.abs(m).max() * scale) for m in modes)
+    eig = np.linalg.eigvalsh(K) / scale
+    print(f"\nfree ball: {n} interface nodes, |K r| / |K| |r| <= {rigid:.1e} for the six rigid modes; "
+          f"eigenvalues / max |K|: {eig[:8]}")
+    assert np.abs(K - K.T).max() < 1e-12 * scale
+    assert rigid < 1e-10
+    assert np.abs(eig[:6]).max() < 1e-10 and eig[6] > 1e-6
+
+
 # -- 4. homogeneous finite strain on tetrahedra ----------------------------------------------
 AFFINE_3D = {"triaxial": np.diag([1.1, 0.95, 1.05]),
              "shear": np.array([[1.0, 0.1, 0.05], [0.0, 1.0, 0.2], [0.1, 0.0, 0.9]])}
