@@ -1,11 +1,8 @@
 """The Stokes solver on 3D tetrahedra: the same code as in 2D (fluid.StokesSolver, fluid.ale).
 
-Channels along x: 0 < x < L, 0 < y < W, 0 < z < Z on structured tetrahedral
-meshes (each cube cut into the six Kuhn tetrahedra around its diagonal),
-viscosity mu, driven by the pressure drop DP = P(0) - P(L): the inlet x = 0
-is an interface with a prescribed normal traction (t.n = -DP, n = -e_x) and
-no tangential velocity, the outlet x = L has V_y = V_z = 0 and t_x = 0
-(P = 0 there), so dP/dx = -G, G = DP / L.  Then V = u(y, z) e_x with
+Pressure-driven channels along x (``tests/fluid3d_cases.py``: structured Kuhn
+tetrahedra, inlet with t.n = -DP and no tangential velocity, outlet with
+V_y = V_z = 0 and t_x = 0, G = DP / L).  Then V = u(y, z) e_x with
 
 * a duct (no slip on y = 0, W and z = 0, H): -mu (u_yy + u_zz) = G, u = 0 on the
   walls, the series of ``gelcell.geometry.layout.duct_poiseuille``;
@@ -25,92 +22,16 @@ import scipy.spatial
 from mpi4py import MPI
 
 import ufl
-from dolfinx import fem, mesh as dmesh
+from dolfinx import fem
 
 from femtools.functions import integrate
-from femtools.mesh import PARTITIONER, rectangle_mesh
+from femtools.mesh import rectangle_mesh
 from femtools.mesh import BOTTOM as RECT_BOTTOM, LEFT as RECT_LEFT, RIGHT as RECT_RIGHT, TOP as RECT_TOP
 from fluid import FluidInterface, StokesSolver
+from fluid3d_cases import BACK, DP, FLOOR, FRONT, INLET, LID, MU, OUTLET, box_mesh, channel, relative_errors
 from gelcell.geometry.layout import duct_poiseuille, duct_poiseuille_peak, plane_poiseuille
 
 COMM = MPI.COMM_WORLD
-#: facet tags of the box: x = 0, x = L, y = 0, y = W, z = 0, z = Z
-INLET, OUTLET, FRONT, BACK, FLOOR, LID = 1, 2, 3, 4, 5, 6
-MU, DP = 0.7, 2.0
-#: the six tetrahedra of a unit cube: paths from corner (0,0,0) to (1,1,1), one axis per step
-_KUHN = [(0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0)]
-
-
-# --------------------------------------------------------------------------- meshes and solvers
-def _box_cells(n, mirror):
-    """Kuhn tetrahedra of an (nx, ny, nz) grid of cubes; with ``mirror``, 2 nz layers, the upper nz
-    the mirror images of the lower ones (the mesh is symmetric about the mid-plane)."""
-    nx, ny, nz = n
-    layers = 2 * nz if mirror else nz
-    I, J, K = (a.ravel() for a in np.meshgrid(np.arange(nx), np.arange(ny), np.arange(layers), indexing="ij"))
-    flip = K >= nz if mirror else np.zeros(K.shape, dtype=bool)
-    cells = []
-    for path in _KUHN:
-        corner, vertices = np.zeros((I.size, 3), dtype=np.int64), []
-        for step in range(4):
-            if step:
-                corner[:, path[step - 1]] += 1
-            kz = np.where(flip, 1 - corner[:, 2], corner[:, 2])
-            vertices.append(((I + corner[:, 0]) * (ny + 1) + J + corner[:, 1]) * (layers + 1) + K + kz)
-        cells.append(np.column_stack(vertices))
-    return np.vstack(cells), layers
-
-
-def box_mesh(lengths, n, mirror=False):
-    """Tetrahedra on [0, L] x [0, W] x [0, Z] (Z doubled with ``mirror``), built on rank 0 and
-    distributed; facet tags INLET, OUTLET, FRONT, BACK, FLOOR, LID."""
-    L, W, Z = lengths
-    cells, layers = _box_cells(n, mirror)
-    top = 2 * Z if mirror else Z
-    grid = np.meshgrid(np.linspace(0, L, n[0] + 1), np.linspace(0, W, n[1] + 1), np.linspace(0, top, layers + 1),
-                       indexing="ij")
-    x = np.column_stack([g.ravel() for g in grid])
-    if COMM.rank != 0:
-        cells, x = np.empty((0, 4), dtype=np.int64), np.empty((0, 3))
-    domain = ufl.Mesh(ufl.VectorElement(ufl.FiniteElement("Lagrange", ufl.tetrahedron, 1, variant="equispaced")))
-    msh = dmesh.create_mesh(COMM, cells, x, domain, partitioner=PARTITIONER)
-    tol = 1e-10 * max(L, W, top)
-    idx, val = [], []
-    for tag, axis, c in ((INLET, 0, 0.0), (OUTLET, 0, L), (FRONT, 1, 0.0), (BACK, 1, W), (FLOOR, 2, 0.0),
-                         (LID, 2, top)):
-        facets = dmesh.locate_entities_boundary(msh, 2, lambda X, a=axis, c=c: np.abs(X[a] - c) <= tol)
-        idx.append(facets)
-        val.append(np.full(facets.size, tag, dtype=np.int32))
-    idx, val = np.hstack(idx), np.hstack(val)
-    order = np.argsort(idx)
-    return msh, dmesh.meshtags(msh, 2, idx[order].astype(np.int32), val[order])
-
-
-def channel(msh, ft, walls, symmetric=(), interfaces=None):
-    """Pressure-driven channel (module docstring): no slip on ``walls``, V_z = 0 on ``symmetric``."""
-    inlet = FluidInterface(INLET, normal="robin", tangential="dirichlet")
-    solver = StokesSolver(msh, ft, viscosity=MU, velocity_bcs=[(walls, (0.0, 0.0, 0.0))] if walls else [],
-                          component_bcs=[(OUTLET, 1, 0.0), (OUTLET, 2, 0.0)]
-                          + ([(symmetric, 2, 0.0)] if symmetric else []),
-                          interfaces={"inlet": inlet, **(interfaces or {})})
-    n = len(solver.interface_points("inlet"))
-    # t.n = -P + 2 mu dV_x/dx n_x^2 = -DP with n = -e_x: g_N = -DP n
-    solver.set_interface_data("inlet", robin_normal=np.tile([DP, 0.0, 0.0], (n, 1)))
-    solver.solve()
-    return solver
-
-
-def relative_errors(solver, axial, L):
-    """Relative L2 errors of V against axial(y, z) e_x (interpolated in P4) and of P against G (L - x)."""
-    msh = solver.mesh
-    exact = fem.Function(fem.VectorFunctionSpace(msh, ("Lagrange", 4)))
-    exact.interpolate(lambda x: np.vstack([axial(x[1], x[2]), 0 * x[0], 0 * x[0]]))
-    P_exact = DP / L * (L - ufl.SpatialCoordinate(msh)[0])
-    dx = ufl.Measure("dx", domain=msh, metadata={"quadrature_degree": 8})
-    e = solver.velocity - exact
-    eV = np.sqrt(integrate(ufl.inner(e, e), dx) / integrate(ufl.inner(exact, exact), dx))
-    eP = np.sqrt(integrate((solver.pressure - P_exact) ** 2, dx) / integrate(P_exact ** 2, dx))
-    return eV, eP
 
 
 def owned_nodes(u: fem.Function):
@@ -290,6 +211,32 @@ def test_wall_traction_on_a_3d_face():
     assert np.abs(F - F_exact).max() < 1e-10 * abs(F_exact[0])
 
 
+def test_sliding_lid_as_a_tangential_dirichlet_interface():
+    """Couette flow: the lid z = Z an interface with a tangential Dirichlet part (its data (N, 3) = (U, 0, 0):
+    the two tangential components of a z = const plane) and a traction-free normal part; no slip on the
+    floor, V_y = 0 on the y faces and V_y = V_z = 0 with t_x = 0 at the ends.  Exact: V = U z / Z e_x,
+    P = 0 (in P2/P1), the lid's traction ON the fluid t = (mu U / Z, 0, 0) (n = e_z, t_z = -P = 0): it drags
+    the fluid along."""
+    W, Z, L, U = 0.8, 0.5, 1.0, 1.3
+    msh, ft = box_mesh((L, W, Z), (2, 2, 2))
+    solver = StokesSolver(msh, ft, viscosity=MU, velocity_bcs=[(FLOOR, (0.0, 0.0, 0.0))],
+                          component_bcs=[((FRONT, BACK), 1, 0.0), ((INLET, OUTLET), 1, 0.0),
+                                         ((INLET, OUTLET), 2, 0.0)],
+                          interfaces={"lid": FluidInterface(LID, normal="robin", tangential="dirichlet")})
+    assert solver.input_names("lid") == {"velocity": 3, "robin_normal": 3}
+    X = solver.interface_points("lid")
+    solver.set_interface_data("lid", velocity=np.tile([U, 0.0, 0.0], (len(X), 1)))
+    solver.solve()
+    Xv, V = owned_nodes(solver.velocity)
+    eV = global_max(V - np.column_stack([U * Xv[:, 2] / Z, 0 * Xv[:, 0], 0 * Xv[:, 0]]))
+    eP = global_max(owned_nodes(solver.pressure)[1])
+    t = solver.interface_data("lid")["traction"]
+    # the ends fix V_y, V_z of the lid's edge nodes and the y faces V_y: exact t_y = t_z = 0 there
+    e_t = np.abs(t - np.tile([MU * U / Z, 0.0, 0.0], (len(X), 1))).max()
+    print(f"sliding lid: errors V {eV:.1e}, P {eP:.1e}, lid traction {e_t:.1e}")
+    assert eV < 1e-10 * U and eP < 1e-10 * MU * U / Z and e_t < 1e-10 * MU * U / Z
+
+
 def test_3d_input_errors_name_the_dimension():
     msh, ft = box_mesh((1.0, 1.0, 1.0), (1, 1, 1))
     with pytest.raises(ValueError, match=r"component must be 0 \(x\), 1 \(y\) or 2 \(z\) in 3D, got 3"):
@@ -299,6 +246,9 @@ def test_3d_input_errors_name_the_dimension():
     with pytest.raises(ValueError, match=r"pressure_pin must be a point \(x, y, z\)"):
         StokesSolver(msh, ft, viscosity=1.0, velocity_bcs=[((INLET, OUTLET, FRONT, BACK, FLOOR, LID), 0.0)],
                      pressure_pin=(0.0, 0.0))
+    with pytest.raises(ValueError, match="flat, axis-aligned interface .* dz=1"):
+        StokesSolver(msh, ft, viscosity=1.0, velocity_bcs=[(INLET, (1.0, 0.0, 0.0))],
+                     interfaces={"bent": FluidInterface((FRONT, FLOOR), tangential="dirichlet")})
     with pytest.raises(ValueError, match=r"pass pressure_pin=\(x, y, z\)"):
         StokesSolver(msh, ft, viscosity=1.0, velocity_bcs=[((INLET, OUTLET, FRONT, BACK, FLOOR, LID), 0.0)])
 
