@@ -133,7 +133,7 @@ class MovingStokesSolver(StokesSolver):
 
     Mesh motion (``femtools.meshmotion.MeshMotion``, with the same ``petsc_options``): data on the interfaces
     and ``mesh_boundaries``, sliding on the ``component_bcs`` boundaries
-    (symmetry lines: the component they fix is held), held on every other
+    (symmetry lines or planes: the component they fix is held), held on every other
     boundary.
     """
 
