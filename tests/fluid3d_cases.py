@@ -21,11 +21,13 @@ from femtools.functions import integrate
 from femtools.mesh import PARTITIONER
 from fluid import FluidInterface, StokesSolver
 
-__all__ = ["INLET", "OUTLET", "FRONT", "BACK", "FLOOR", "LID", "MU", "DP", "box_mesh", "channel",
-           "relative_errors"]
+__all__ = ["INLET", "OUTLET", "FRONT", "BACK", "FLOOR", "LID", "PIPE_WALL", "MU", "DP", "box_mesh", "pipe_mesh",
+           "channel", "relative_errors"]
 
 #: facet tags of the box: x = 0, x = L, y = 0, y = W, z = 0, z = Z
 INLET, OUTLET, FRONT, BACK, FLOOR, LID = 1, 2, 3, 4, 5, 6
+#: facet tag of the curved wall of :func:`pipe_mesh` (its ends are INLET and OUTLET)
+PIPE_WALL = 7
 MU, DP = 0.7, 2.0
 #: the six tetrahedra of a unit cube: paths from corner (0,0,0) to (1,1,1), one axis per step
 _KUHN = [(0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0)]
@@ -74,6 +76,34 @@ def box_mesh(lengths, n, mirror=False, comm: MPI.Comm = MPI.COMM_WORLD):
     idx, val = np.hstack(idx), np.hstack(val)
     order = np.argsort(idx)
     return msh, dmesh.meshtags(msh, 2, idx[order].astype(np.int32), val[order])
+
+
+def pipe_mesh(length: float, radius: float, h: float, comm: MPI.Comm = MPI.COMM_WORLD):
+    """A circular pipe along x (gmsh, unstructured P2 tetrahedra with curved faces, size h): facet tags
+    INLET (x = 0), OUTLET (x = length), PIPE_WALL."""
+    import gmsh
+    from femtools.mesh import model_to_mesh
+    gmsh.initialize()
+    gmsh.option.setNumber("General.Terminal", 0)
+    try:
+        if comm.rank == 0:
+            occ = gmsh.model.occ
+            volume = occ.addCylinder(0, 0, 0, length, 0, 0, radius)
+            occ.synchronize()
+            gmsh.model.addPhysicalGroup(3, [volume], 1)
+            for _, surface in gmsh.model.getEntities(2):
+                x = occ.getCenterOfMass(2, surface)[0]
+                tag = INLET if abs(x) < 1e-9 else OUTLET if abs(x - length) < 1e-9 else PIPE_WALL
+                gmsh.model.addPhysicalGroup(2, [surface], tag)
+            for option, value in (("MeshSizeMin", h), ("MeshSizeMax", h), ("MeshSizeFromCurvature", 0),
+                                  ("MeshSizeFromPoints", 0)):
+                gmsh.option.setNumber(f"Mesh.{option}", value)
+            gmsh.model.mesh.generate(3)
+            gmsh.model.mesh.setOrder(2)
+        msh, _, ft = model_to_mesh(gmsh.model, comm, 0, gdim=3)
+    finally:
+        gmsh.finalize()
+    return msh, ft
 
 
 def channel(msh, ft, walls, symmetric=()):
