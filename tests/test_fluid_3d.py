@@ -73,6 +73,8 @@ def test_duct_series_against_its_flow_rate_and_limits():
     walls = [duct_poiseuille(0 * edges, H * edges, W, H, 1.0), duct_poiseuille(W + 0 * edges, H * edges, W, H, 1.0),
              duct_poiseuille(W * edges, 0 * edges, W, H, 1.0), duct_poiseuille(W * edges, H + 0 * edges, W, H, 1.0)]
     assert np.abs(walls).max() < 1e-14
+    outside = duct_poiseuille(np.array([-1.0, W / 2, 2 * W]), np.array([H / 2, -3.0, H / 2]), W, H, 1.0)
+    assert np.abs(outside).max() < 1e-14
     gz, wz = np.polynomial.legendre.leggauss(3)
     assert abs(np.sum(wz * plane_poiseuille(H / 2 * (gz + 1), H, 0.8)) / 2 - 0.8) < 1e-14
     with pytest.raises(ValueError, match="height must be finite and > 0"):

@@ -95,8 +95,8 @@ def _duct_series(a, b, A, B) -> np.ndarray:
     n = 20001 (tail < 2e-10 B^2; reached only within about B / 5000 of a wall a = 0, A).
     """
     delta = np.minimum(a, A - a)
-    s = 0.5 * b * (B - b)
-    active = np.ones(a.shape, dtype=bool)
+    s = np.where(delta > 0, 0.5 * b * (B - b), 0.0)       # s = 0 on the walls a = 0, A
+    active = delta > 0
     n = 1
     while np.any(active) and n <= 20001:
         k = n * np.pi / B
@@ -114,7 +114,7 @@ def _duct_shape(y, z, W: float, H: float) -> np.ndarray:
     """s with -(s_yy + s_zz) = 1 in (0, W) x (0, H), s = 0 on the walls: the series in the direction in
     which the point is further from the walls (geometric convergence everywhere but at the corners)."""
     y, z = np.broadcast_arrays(np.asarray(y, dtype=float), np.asarray(z, dtype=float))
-    y, z = y.ravel(), z.ravel()
+    y, z = np.clip(y.ravel(), 0.0, W), np.clip(z.ravel(), 0.0, H)
     s = np.zeros(y.shape)
     in_y = np.minimum(y, W - y) / H >= np.minimum(z, H - z) / W     # cosh along y, sine series along z
     s[in_y] = _duct_series(y[in_y], z[in_y], W, H)
@@ -147,7 +147,9 @@ def duct_poiseuille(y, z, width: float, height: float, peak: float) -> np.ndarra
     u = V0 s(y, z) / s(W/2, H/2).  Points closer to the walls y = 0, W than (relatively) to
     z = 0, H use the same series with the roles of (y, W) and (z, H) swapped, which converges
     geometrically there.  ``y``, ``z``: arrays (broadcast together) of positions in the duct's
-    cross-section, measured from one corner; returns the speeds, of their broadcast shape.
+    cross-section, measured from one corner; returns the speeds, of their broadcast shape.  Points
+    outside the cross-section take the value of the nearest point of it (finite everywhere, as
+    ``Function.interpolate`` evaluates a boundary profile at every node of the mesh).
     """
     W, H = _positive("width", width), _positive("height", height)
     shape = np.broadcast(np.asarray(y), np.asarray(z)).shape
