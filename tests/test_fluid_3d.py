@@ -285,6 +285,11 @@ def test_3d_input_errors_name_the_dimension():
                      interfaces={"bent": FluidInterface((FRONT, FLOOR), tangential="dirichlet")})
     with pytest.raises(ValueError, match=r"pass pressure_pin=\(x, y, z\)"):
         StokesSolver(msh, ft, viscosity=1.0, velocity_bcs=[((INLET, OUTLET, FRONT, BACK, FLOOR, LID), 0.0)])
+    # V_z on the z faces is their normal component: enclosed; V_x there is tangential: the normal flow is free
+    sides = [((INLET, OUTLET, FRONT, BACK), (1.0, 0.0, 0.0))]
+    with pytest.raises(ValueError, match="prescribed on the whole boundary of 1 of its 1 connected part"):
+        StokesSolver(msh, ft, viscosity=1.0, velocity_bcs=sides, component_bcs=[((FLOOR, LID), 2, 0.0)])
+    StokesSolver(msh, ft, viscosity=1.0, velocity_bcs=sides, component_bcs=[((FLOOR, LID), 0, 0.0)])
 
 
 # --------------------------------------------------------------------------- 4. the moving domain (fluid.ale)
