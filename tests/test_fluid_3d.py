@@ -339,20 +339,25 @@ def test_moving_slab_sheared_and_stretched():
 
 
 # --------------------------------------------------------------------------- 5. the linearised interface map
-def test_interface_jacobian_in_3d():
+@pytest.mark.parametrize("moving", [False, True], ids=["fixed", "moving_at_rest"])
+def test_interface_jacobian_in_3d(moving):
     """interface_jacobian() on tetrahedra against the solver: the outputs are affine in the Robin data,
-    so out(g + delta) - out(g) = J delta to round-off (tests/test_fluid_jacobian.py in 2D).  Inlet and
-    outlet of a no-slip duct are Robin interfaces (3-component data) whose edges lie on the walls."""
+    so out(g + delta) - out(g) = J delta to round-off (tests/test_fluid_jacobian.py in 2D); the moving
+    solver at zero displacement with its normal_flux input too.  Inlet and outlet of a no-slip duct are
+    Robin interfaces (3-component data) whose edges lie on the walls."""
+    from fluid.ale import MovingStokesSolver
     msh, ft = box_mesh((1.0, 0.6, 0.4), (2, 2, 1))
-    solver = StokesSolver(msh, ft, viscosity=MU, velocity_bcs=[((FRONT, BACK, FLOOR, LID), (0.0, 0.0, 0.0))],
-                          interfaces={"in": FluidInterface(INLET, alpha_n=1.0, alpha_t=0.5),
-                                      "out": FluidInterface(OUTLET, alpha_n=0.0, alpha_t=2.0)})
+    solver = (MovingStokesSolver if moving else StokesSolver)(
+        msh, ft, viscosity=MU, velocity_bcs=[((FRONT, BACK, FLOOR, LID), (0.0, 0.0, 0.0))],
+        interfaces={"in": FluidInterface(INLET, alpha_n=1.0, alpha_t=0.5),
+                    "out": FluidInterface(OUTLET, alpha_n=0.0, alpha_t=2.0)})
     rng = np.random.default_rng(1)
     names = solver.interface_names()
-    keys = ("robin_normal", "robin_tangential")
+    keys = {name: [k for k in solver.input_names(name) if k != "displacement"] for name in names}
+    assert all(solver.input_names(name)[k] == 3 for name in names for k in solver.input_names(name))
     shape = {name: (len(solver.interface_points(name)), 3) for name in names}
-    base = {name: {k: rng.standard_normal(shape[name]) for k in keys} for name in names}
-    delta = {name: {k: rng.standard_normal(shape[name]) for k in keys} for name in names}
+    base = {name: {k: rng.standard_normal(shape[name]) for k in keys[name]} for name in names}
+    delta = {name: {k: rng.standard_normal(shape[name]) for k in keys[name]} for name in names}
 
     def outputs(data):
         for name, arrays in data.items():
@@ -360,11 +365,11 @@ def test_interface_jacobian_in_3d():
         solver.solve()
         return {name: solver.interface_data(name) for name in names}
     out0 = outputs(base)
-    out1 = outputs({n: {k: base[n][k] + delta[n][k] for k in keys} for n in names})
+    out1 = outputs({n: {k: base[n][k] + delta[n][k] for k in keys[n]} for n in names})
     J = solver.interface_jacobian()
     for o in names:
         for ok in ("velocity", "traction"):
-            predicted = sum(J[((o, ok), (i, ik))] @ delta[i][ik].ravel() for i in names for ik in keys)
+            predicted = sum(J[((o, ok), (i, ik))] @ delta[i][ik].ravel() for i in names for ik in keys[i])
             change = (out1[o][ok] - out0[o][ok]).ravel()
             assert J[((o, ok), (o, "robin_normal"))].shape == (3 * shape[o][0], 3 * shape[o][0])
             assert np.abs(predicted - change).max() < 1e-9 * np.abs(change).max(), (o, ok)
