@@ -41,10 +41,11 @@ chord errors, below a fifth of the edge even for an icosahedron in its
 sphere.  A point farther off raises a :class:`ValueError` naming the data and
 the distance.
 
-Candidate triangles come from a KD-tree of the triangle centroids; a query
-keeps asking for more candidates until the farthest returned centroid is
-farther than the nearest triangle found plus the largest triangle radius, so
-the nearest triangle is never missed.
+Candidate triangles come from KD-trees of the triangle centroids, one per
+band of triangle sizes; a query keeps asking a band for more candidates until
+the farthest returned centroid is farther than the nearest triangle found plus
+the band's largest triangle radius, so the nearest triangle is never missed,
+on graded meshes too.
 """
 
 from __future__ import annotations
@@ -169,13 +170,13 @@ def _check_p2_order(dev: np.ndarray, lengths: np.ndarray, triangles: np.ndarray,
             f"v0, v1, v2, then the nodes on the edges (v1, v2), (v0, v2), (v0, v1)")
 
 
-def _flat_closest(surface: _Surface, q: np.ndarray, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Closest points of the flat candidate triangles ``cand`` ``(n, k)`` to ``q`` ``(n, 3)``.
+def _flat_closest(surface: _Surface, q: np.ndarray, tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closest points of the flat triangles ``tri`` ``(p,)`` to the points ``q`` ``(p, 3)``, pair by pair.
 
-    Returns their reference coordinates ``(n, k, 2)`` and distances ``(n, k)``.
+    Returns their reference coordinates ``(p, 2)`` and distances ``(p,)``.
     """
-    v = [q[:, i, None] - surface.origin[i][cand] for i in range(3)]
-    return _affine_closest(v, [x[cand] for x in surface.e0], [x[cand] for x in surface.e1])
+    v = [q[:, i] - surface.origin[i][tri] for i in range(3)]
+    return _affine_closest(v, [x[tri] for x in surface.e0], [x[tri] for x in surface.e1])
 
 
 def _affine_closest(v: list, e0: list, e1: list) -> tuple[np.ndarray, np.ndarray]:
@@ -225,46 +226,54 @@ def _curved_closest(xnodes: np.ndarray, q: np.ndarray, st: np.ndarray) -> tuple[
     and moves to the closest point of that flat triangle; the fixed point is
     the constrained stationary point of ``|q - x(ξ)|``.
     """
+    coords = [np.ascontiguousarray(xnodes[:, :, i]) for i in range(3)]  # (p, 6) per coordinate
     for _ in range(_NEWTON_ITERATIONS):
         n, dn = _p2_shape(st)
-        x = np.einsum("pa,pai->pi", n, xnodes)
-        jac = np.einsum("pak,pai->pik", dn, xnodes)  # (p, 3, 2)
-        origin = x - np.einsum("pik,pk->pi", jac, st)
-        new, _ = _affine_closest(list((q - origin).T), list(jac[:, :, 0].T), list(jac[:, :, 1].T))
+        ds, dt = dn[..., 0], dn[..., 1]
+        e0 = [(ds * c).sum(axis=1) for c in coords]
+        e1 = [(dt * c).sum(axis=1) for c in coords]
+        v = [q[:, i] - (n * coords[i]).sum(axis=1) + e0[i] * st[:, 0] + e1[i] * st[:, 1] for i in range(3)]
+        new, _ = _affine_closest(v, e0, e1)
         moved = float(np.abs(new - st).max(initial=0.0))
         st = new
         if moved < _NEWTON_TOL:  # reference coordinates: an absolute tolerance
             break
     n, _ = _p2_shape(st)
-    return st, np.linalg.norm(q - np.einsum("pa,pai->pi", n, xnodes), axis=1)
+    return st, np.sqrt(sum((q[:, i] - (n * coords[i]).sum(axis=1)) ** 2 for i in range(3)))
 
 
-def _nearest_among(surface: _Surface, q: np.ndarray,
-                   cand: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per query ``q`` ``(n, 3)``, the nearest of its candidate triangles ``cand`` ``(n, k)``.
+def _nearest_among(surface: _Surface, q: np.ndarray, cand: np.ndarray, hopeful: np.ndarray,
+                   known: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per query ``q`` ``(n, 3)``, the nearest of its candidate triangles ``cand`` ``(n, k)`` that are ``hopeful``.
 
+    ``known`` ``(n,)`` is the distance of the nearest triangle found before
+    (``inf`` if none): curved candidates that cannot beat it are skipped.
     Returns the triangle, the reference coordinates ``(s, t)`` of the closest
-    point on it and the distance, ``(n,)``, ``(n, 2)``, ``(n,)``.
+    point on it and the distance, ``(n,)``, ``(n, 2)``, ``(n,)`` (distance
+    ``inf`` where no candidate is hopeful or can beat ``known``).
     """
-    st, dist = _flat_closest(surface, q, cand)
+    rows, cols = np.nonzero(hopeful)
+    st, dist = np.zeros(cand.shape + (2,)), np.full(cand.shape, np.inf)
+    st[rows, cols], dist[rows, cols] = _flat_closest(surface, q[rows], cand[rows, cols])
     if surface.quadratic:
-        st, dist = _curved_distances(surface, q, cand, st, dist)
+        st, dist = _curved_distances(surface, q, cand, st, dist, known)
     best = np.argmin(dist, axis=1)
-    rows = np.arange(q.shape[0])
-    return cand[rows, best], st[rows, best], dist[rows, best]
+    everyone = np.arange(q.shape[0])
+    return cand[everyone, best], st[everyone, best], dist[everyone, best]
 
 
 def _curved_distances(surface: _Surface, q: np.ndarray, cand: np.ndarray, st: np.ndarray,
-                      dist: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                      dist: np.ndarray, known: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Closest points on the curved candidates that can be the nearest (``inf`` for the others).
 
     A curved triangle is within its ``bulge`` of its flat one, so a candidate
-    whose flat distance minus its bulge exceeds another's plus its bulge
-    cannot be the nearest.
+    whose flat distance minus its bulge exceeds another's plus its bulge, or
+    the distance ``known`` before, cannot be the nearest (an ``inf`` flat
+    distance: not a candidate).
     """
     bulge = surface.bulge[cand]
-    bound = (dist + bulge).min(axis=1, keepdims=True)
-    rows, cols = np.nonzero(dist - bulge <= bound)
+    bound = np.minimum((dist + bulge).min(axis=1), known)[:, None]
+    rows, cols = np.nonzero(np.isfinite(dist) & (dist - bulge <= bound))
     xnodes = surface.nodes[surface.triangles[cand[rows, cols]]]
     st_curved, dist_curved = _curved_closest(xnodes, q[rows], st[rows, cols])
     st = st.copy()
@@ -274,27 +283,53 @@ def _curved_distances(surface: _Surface, q: np.ndarray, cand: np.ndarray, st: np
     return st, out
 
 
+def _size_bands(surface: _Surface) -> list[np.ndarray]:
+    """Triangle indices in bands of radii within a factor 2 (one band on a quasi-uniform mesh), largest first."""
+    band = np.floor(np.log(surface.radius / surface.radius.min()) / np.log(2.0)).astype(np.int64)
+    bands = [np.flatnonzero(band == b) for b in np.unique(band)]
+    return sorted(bands, key=lambda m: -m.size)  # the largest first: the best first bound
+
+
+def _search(surface: _Surface, queries: np.ndarray, rows: np.ndarray, band: tuple[np.ndarray, cKDTree, float],
+            k: int, best: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
+    """Update ``best`` (triangle, ``(s, t)``, distance) of queries ``rows`` from the ``k`` triangles of a
+    band (members, KD-tree of their centroids, largest radius) with the nearest centroids.
+
+    Returns the distance of the farthest of these centroids, per query.
+    """
+    members, tree, largest = band
+    centre_dist, local = tree.query(queries[rows], k=k)
+    centre_dist, local = centre_dist.reshape(rows.size, k), local.reshape(rows.size, k)
+    hopeful = centre_dist - largest < best[2][rows, None]  # the others cannot beat the best so far
+    tri, st, dist = _nearest_among(surface, queries[rows], members[local], hopeful, best[2][rows])
+    better = dist < best[2][rows]
+    r = rows[better]
+    best[0][r], best[1][r], best[2][r] = tri[better], st[better], dist[better]
+    return centre_dist[:, -1]
+
+
 def _closest(surface: _Surface, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Nearest triangle, reference coordinates of the closest point on it, and distance, per query.
 
-    A query is done when its farthest candidate centroid is farther than the
-    nearest triangle found plus the largest triangle radius (no other
-    triangle can be nearer); the others ask again for four times as many.
+    Triangles are searched by bands of similar size, each with a KD-tree of
+    its centroids.  In a band, a query is done when its farthest candidate
+    centroid is farther than the nearest triangle found so far plus the
+    band's largest radius (no other triangle of the band can be nearer); the
+    others ask again for four times as many candidates.
     """
-    n_tri, nq = surface.triangles.shape[0], queries.shape[0]
-    tree = cKDTree(surface.centroids)
-    tri, st, dist = np.empty(nq, dtype=np.int64), np.empty((nq, 2)), np.empty(nq)
-    todo, k = np.arange(nq), min(n_tri, _CANDIDATES)
-    largest = float(surface.radius.max())
-    while todo.size:
-        centre_dist, cand = tree.query(queries[todo], k=k)
-        centre_dist, cand = centre_dist.reshape(todo.size, k), cand.reshape(todo.size, k)
-        tri[todo], st[todo], dist[todo] = _nearest_among(surface, queries[todo], cand)
-        if k == n_tri:
-            break
-        todo = todo[centre_dist[:, -1] <= dist[todo] + largest]
-        k = min(n_tri, 4 * k)
-    return tri, st, dist
+    nq = queries.shape[0]
+    best = (np.full(nq, -1, dtype=np.int64), np.zeros((nq, 2)), np.full(nq, np.inf))
+    bands = [(m, cKDTree(surface.centroids[m]), float(surface.radius[m].max())) for m in _size_bands(surface)]
+    everyone = np.arange(nq)
+    reach = [_search(surface, queries, everyone, band, min(band[0].size, _CANDIDATES), best) for band in bands]
+    for band, far in zip(bands, reach):
+        k = min(band[0].size, _CANDIDATES)
+        todo = np.flatnonzero(far <= best[2] + band[2])
+        while todo.size and k < band[0].size:
+            k = min(band[0].size, 4 * k)
+            far = _search(surface, queries, todo, band, k, best)
+            todo = todo[far <= best[2][todo] + band[2]]
+    return best
 
 
 def _check_gaps(surface: _Surface, queries: np.ndarray, tri: np.ndarray, dist: np.ndarray,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.spatial import ConvexHull
+from scipy.spatial import ConvexHull, Delaunay
 
 import coupling as cp
 
@@ -18,6 +18,11 @@ def field(x: np.ndarray) -> np.ndarray:
     """A smooth field in space, two components (data are mapped per component)."""
     return np.column_stack([np.sin(2.0 * x[:, 0]) + np.cos(3.0 * x[:, 1]) * x[:, 2] + np.exp(0.5 * x[:, 2]),
                             x[:, 0] * x[:, 1] - np.sin(x[:, 2])])
+
+
+def linear(x: np.ndarray) -> np.ndarray:
+    """A linear field in space: every linear interpolant reproduces it."""
+    return (1.0 + x @ np.array([2.0, -3.0, 0.5]))[:, None]
 
 
 def plane(n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -164,6 +169,18 @@ def test_points_near_the_surface_get_the_value_at_their_foot(degree):
     np.testing.assert_allclose(m(exact(writer)[:, None])[:, 0], exact(foot), rtol=0, atol=1e-13)
 
 
+def test_on_a_graded_mesh_the_nearest_triangle_is_found_though_its_centroid_is_far():
+    # a fine patch inside large triangles: for 40 % of the points the large triangle holding them is not
+    # among the 8 triangles with the nearest centroids; a linear field is exact only on the right one
+    s = np.linspace(0.4, 0.6, 30)
+    uv = np.vstack([np.array(np.meshgrid(s, s)).reshape(2, -1).T,
+                    [[0, 0], [1, 0], [0, 1], [1, 1], [0.5, 0], [0, 0.5]]])
+    writer = np.column_stack([uv, np.zeros(len(uv))])
+    reader = np.column_stack([np.random.default_rng(0).uniform(0, 1, (2000, 2)), np.zeros(2000)])
+    m = cp.build_mapping("surface", writer, reader, triangles=Delaunay(uv).simplices)
+    np.testing.assert_allclose(m(linear(writer)), linear(reader), rtol=0, atol=1e-13)
+
+
 @pytest.mark.parametrize("kind", ["surface", "surface-conservative"])
 def test_a_point_far_from_the_surface_is_an_error_naming_the_data_and_the_distance(kind):
     points, triangles = plane(8)
@@ -216,10 +233,6 @@ class Surface(cp.Participant):
     def solve(self, inputs):
         self.read = {k: v.copy() for k, v in inputs.items()}
         return {self.writes: self.value(self.points)}
-
-
-def linear(x: np.ndarray) -> np.ndarray:
-    return (1.0 + x @ np.array([2.0, -3.0, 0.5]))[:, None]
 
 
 class NoTriangles(Surface):
