@@ -18,28 +18,31 @@ Triangles are ``(M, 3)`` (linear, nodes ``v0, v1, v2``) or ``(M, 6)``
 6-node triangle ``t`` is ``t[:, [0, 1, 2, 4, 5, 3]]``), indices into the
 participant's interface points.  Every point must be a node of a triangle.
 
-Order of accuracy (``h`` the writer's triangle size, ``v`` smooth on a smooth
-surface whose nodes lie on it).  Linear triangles: the interpolant's error is
-O(h²); the flat triangles depart from the surface by O(h²), and that gap lies
-along the normal up to an O(h) tilt, so the projection lands O(h³) from the
-reader point's foot on the surface along the surface and O(h²) off it: the
-mapping is **second order, O(h²)**, curvature included.  No quadratic
-correction is needed for second order, and one built from linear data
-alone would need normals or a recovered Hessian the participant does not
-provide.  Quadratic triangles: the reader point is projected onto the curved
-triangle by Gauss–Newton iterations started from the flat projection; the
-curved surface departs from the true one by O(h³) and the P2 interpolant's
-error is O(h³): **third order, O(h³)**.  The transpose of a P2 map gives
-vertex nodes negative shares near edge midpoints (the P2 shape functions
-``λ(2λ - 1)`` are negative there); the sum is still preserved.
+Order of accuracy (``h`` the writer's triangle size; the data, the surface
+and the writer's nodes on it smooth).  Linear triangles give second order with
+no correction: a reader point ``q`` on the surface is O(h²) from the flat
+triangles (their chord error), and its foot ``p`` on them lies O(h³) along the
+surface from ``q``, since the triangles' normals are within O(h) of the
+surface's; the linear interpolant at ``p`` is within O(h²) of ``v(p)``, and
+``v(p)`` within O(h²) of ``v(q)``: **O(h²), curvature included**.  (A quadratic
+correction built from linear data alone would need normals or a recovered
+Hessian that participants do not provide.)  Quadratic triangles: ``q`` is
+projected onto the curved triangle by Gauss–Newton steps started from the flat
+triangle's closest point; the curved surface departs from the true one by
+O(h³) and the P2 interpolant's error is O(h³): **O(h³)**.  The transpose of a
+P2 map gives vertex nodes negative shares near edge midpoints (the P2 vertex
+functions ``λ(2λ - 1)`` are negative there); the sum is still preserved.
 
 Points off the surface are projected onto it if their distance is at most
 ``0.5 ×`` the local mesh size (the larger of the nearest triangle's longest
 edge and the distance from the point to its nearest neighbour among the
 points mapped): two discretisations of one smooth surface are apart by their
-chord errors, below a fifth of the edge even for an icosahedron in its
+chord errors, at most 0.195 of an edge even for an icosahedron in its
 sphere.  A point farther off raises a :class:`ValueError` naming the data and
-the distance.
+the distance.  A point a distance δ off a curved surface gets the value at its
+foot on the triangles, which on linear triangles lies O(δ h) along the surface
+from the exact foot (their normals tilt by O(h)): O(h³) for the gap δ = O(h²)
+between two discretisations.
 
 Candidate triangles come from KD-trees of the triangle centroids, one per
 band of triangle sizes; a query keeps asking a band for more candidates until
