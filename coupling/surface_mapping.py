@@ -67,7 +67,7 @@ SURFACE_MAPPINGS = ("surface", "surface-conservative")
 _GAP_FACTOR = 0.5
 _P2_ORDER_FACTOR = 0.25
 _CANDIDATES = 8
-_NEWTON_ITERATIONS = 12
+_NEWTON_ITERATIONS = 20
 _NEWTON_TOL = 1e-13
 # (v1, v2), (v0, v2), (v0, v1): the edge of the P2 node 3, 4, 5
 _P2_EDGES = np.array([[1, 2], [0, 2], [0, 1]])
