@@ -44,6 +44,7 @@ from coupling.replay import ReplayResult, replay
 from coupling.schemes import (CouplingScheme, ParallelExplicitScheme, ParallelImplicitScheme,
                               SerialExplicitScheme, SerialImplicitScheme, build_scheme)
 from coupling.serialization import load_npz, save_npz, to_jsonable, write_bytes
+from coupling.surface_mapping import SURFACE_MAPPINGS, surface_interpolation_matrix, surface_mapping_matrix
 
 __all__ = [
     # participants, data and schemes
@@ -62,6 +63,7 @@ __all__ = [
     "MeasureValue", "build_measure", "lagrange_weights",
     # mapping and MPI
     "Mapping", "build_mapping", "order_along_curve", "polyline_interpolation_matrix",
+    "SURFACE_MAPPINGS", "surface_interpolation_matrix", "surface_mapping_matrix",
     "SerialComm", "default_comm", "gather_rows", "scatter_rows",
     # errors, records, replay, files
     "CouplingError", "CouplingDivergedError", "CouplingNotConvergedError",

@@ -25,7 +25,7 @@ import numpy as np
 
 __all__ = ["Data", "Participant", "MAPPINGS", "CURVES", "CURVE_ORDERS"]
 
-MAPPINGS = ("matching", "nearest", "linear", "conservative")
+MAPPINGS = ("matching", "nearest", "linear", "conservative", "surface", "surface-conservative")
 CURVES = ("auto", "open", "closed")
 CURVE_ORDERS = ("chain", "angle", "given")
 
@@ -43,7 +43,11 @@ class Data:
         mapping: ``"matching"`` (exact point-to-point lookup), ``"nearest"``,
             ``"linear"`` (interpolation along the interface curve) or
             ``"conservative"`` (transpose of the linear map from the reader's
-            to the writer's points; preserves the sum, for nodal forces).
+            to the writer's points; preserves the sum, for nodal forces);
+            ``"surface"`` and ``"surface-conservative"`` are their analogues
+            on triangulated surfaces in 3-D (:mod:`coupling.surface_mapping`;
+            they need :meth:`Participant.interface_triangles` of the writer,
+            resp. of the reader).
         curve: For ``"linear"``/``"conservative"``: ``"open"``, ``"closed"``
             or ``"auto"`` (closed if the chain's end is as close to its start
             as its end segments are long).
@@ -129,6 +133,17 @@ class Participant(abc.ABC):
         The array must be replicated (identical) on every MPI rank; use
         :func:`coupling.parallel.gather_rows` if the points are distributed.
         """
+
+    def interface_triangles(self, mesh_name: str) -> np.ndarray:
+        """Return the triangles of this participant's surface ``mesh_name`` (needed by surface mappings).
+
+        An ``(M, 3)`` or ``(M, 6)`` integer array of row indices into
+        :meth:`interface_points` (``(M, 6)``: quadratic triangles, nodes
+        ``v0, v1, v2`` then those on the edges ``(v1, v2)``, ``(v0, v2)``,
+        ``(v0, v1)``); every point must be a node of a triangle.  Replicated
+        on every MPI rank, like the points.
+        """
+        raise NotImplementedError(f"participant {self.name!r} does not implement interface_triangles()")
 
     @abc.abstractmethod
     def solve(self, inputs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:

@@ -62,6 +62,7 @@ from coupling.participant import Data, Participant
 from coupling.records import (CouplingResult, IterationRecord, RecordedSolve, Recording,
                               WindowRecord, format_progress, write_records)
 from coupling.serialization import load_npz, save_npz
+from coupling.surface_mapping import participant_triangles, triangle_owner
 
 __all__ = ["CouplingScheme", "SerialImplicitScheme", "ParallelImplicitScheme",
            "SerialExplicitScheme", "ParallelExplicitScheme", "build_scheme"]
@@ -197,8 +198,20 @@ class CouplingScheme:
             for reader in d.readers:
                 mappings[(d.name, reader)] = build_mapping(
                     d.mapping, writer_points, self.points(reader, d.mesh), data_name=d.name,
-                    reader=reader, curve=d.curve, curve_order=d.curve_order)
+                    reader=reader, curve=d.curve, curve_order=d.curve_order,
+                    triangles=self._triangles(d, reader))
         return mappings
+
+    def _triangles(self, d: Data, reader: str) -> np.ndarray | None:
+        """The triangles a surface mapping of ``d`` to ``reader`` projects onto (``None`` for the others)."""
+        owner = triangle_owner(d.mapping, d.writer, reader)
+        if owner is None:
+            return None
+        what = f"data {d.name!r} (reader {reader!r}, mapping {d.mapping!r})"
+        tri = participant_triangles(self.participants[owner], d.mesh, what)
+        if self.config.check_replicated:
+            self._check_replicated(owner, {f"interface_triangles({d.mesh!r})": tri})
+        return tri
 
     def _attach_prior(self, surrogate: Any) -> None:
         """Give the quasi-Newton acceleration its prior: the linearized one, or the ``surrogate``."""
