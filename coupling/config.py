@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 __all__ = [
-    "SCHEMES", "STATE_RELOADS", "ACCELERATIONS", "FILTERS", "PRECONDITIONERS", "MEASURES",
+    "SCHEMES", "STATE_RELOADS", "ACCEPTED_VALUES", "ACCELERATIONS", "FILTERS", "PRECONDITIONERS", "MEASURES",
     "ON_MAX_ITERATIONS", "JACOBIAN_PRIORS", "ACCELERATION_OPTIONS", "ConvergenceMeasureConfig",
     "FilterConfig", "PreconditionerConfig", "AccelerationConfig", "CouplingConfig", "load_config",
 ]
@@ -53,6 +53,8 @@ __all__ = [
 SCHEMES = ("serial-implicit", "parallel-implicit", "serial-explicit", "parallel-explicit")
 #: when an implicit scheme restores the participant states within a time window
 STATE_RELOADS = ("iteration", "window")
+#: which values an accepted time window keeps for its accelerated data
+ACCEPTED_VALUES = ("output", "input")
 ACCELERATIONS = ("none", "constant", "aitken", "iqn-ils", "iqn-imvj")
 FILTERS = ("none", "qr1", "qr2")
 PRECONDITIONERS = ("none", "constant", "value", "residual", "residual-sum")
@@ -367,6 +369,18 @@ class CouplingConfig:
             ``"window"`` needs participants whose ``advance(t, dt)`` is
             idempotent within a window and whose state only seeds the next
             solve (e.g. a Newton initial guess, the time history kept apart).
+            With ``"window"``, ``save_state``/``load_state`` are not called
+            within a window at all.
+        accepted_value: The value of the accelerated data that an accepted
+            window keeps (the next window's start, what :meth:`latest`
+            returns and ``end_window`` receives): ``"output"`` = ``x̃``, what
+            the participants wrote in the last iteration (preCICE's choice);
+            ``"input"`` = ``x``, what they read in it, the values their states
+            were computed from.  The two differ by the last residual: less
+            than the convergence limit in a converged window, up to the whole
+            residual in a window accepted unconverged (``on_max_iterations =
+            "continue"``).  Forward data (serial schemes) are the last written
+            values either way.
     """
 
     scheme: str = "serial-implicit"
@@ -382,10 +396,12 @@ class CouplingConfig:
     check_replicated: bool = False
     extrapolation_order: int = 0
     state_reload: str = "iteration"
+    accepted_value: str = "output"
 
     def __post_init__(self) -> None:
         where = "coupling"
         _choice(where, "state_reload", self.state_reload, STATE_RELOADS)
+        _choice(where, "accepted_value", self.accepted_value, ACCEPTED_VALUES)
         _integer(where, "extrapolation_order", self.extrapolation_order, minimum=0)
         if self.extrapolation_order > 2:
             raise ValueError(f"{where}.extrapolation_order = {self.extrapolation_order} must be 0, 1 or 2")
