@@ -29,8 +29,10 @@ from coupling.config import (ACCELERATION_OPTIONS, ACCELERATIONS, FILTERS, JACOB
                              ACCEPTED_VALUES, ON_MAX_ITERATIONS, PRECONDITIONERS, SCHEMES, STATE_RELOADS,
                              AccelerationConfig, ConvergenceMeasureConfig, CouplingConfig,
                              FilterConfig, PreconditionerConfig, load_config)
-from coupling.convergence import (AbsoluteConvergence, ConvergenceMeasure, MeasureValue,
-                                  RelativeConvergence, ResidualRelativeConvergence, build_measure)
+from coupling.convergence import (MEASURE_ALIASES, MEASURE_FORMULAS, AbsoluteConvergence, ConvergenceMeasure,
+                                  MeasureValue,
+                                  RelativeConvergence, ResidualRelativeConvergence, build_measure,
+                                  measure_type)
 from coupling.errors import CouplingDivergedError, CouplingError, CouplingNotConvergedError
 from coupling.extrapolation import lagrange_weights
 from coupling.layout import VectorLayout
@@ -59,7 +61,8 @@ __all__ = [
     "IQNILS", "IQNIMVJ", "Preconditioner", "build_acceleration", "qr_filter", "relaxation_prior_diagonal",
     "LinearizedPrior", "coupled_jacobian", "VectorLayout",
     "ConvergenceMeasure", "AbsoluteConvergence", "RelativeConvergence", "ResidualRelativeConvergence",
-    "MeasureValue", "build_measure", "lagrange_weights",
+    "MeasureValue", "build_measure", "measure_type", "MEASURE_ALIASES", "MEASURE_FORMULAS",
+    "lagrange_weights",
     # mapping and MPI
     "Mapping", "build_mapping", "order_along_curve", "polyline_interpolation_matrix",
     "SerialComm", "default_comm", "gather_rows", "scatter_rows",
