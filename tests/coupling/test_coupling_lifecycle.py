@@ -167,3 +167,38 @@ def test_a_failed_window_is_not_ended():
     with pytest.raises(cp.CouplingNotConvergedError):
         scheme.run(t_end=0.5, dt=0.5)
     assert not [c for c in calls if c[1] in ("end_window", "finalize")]
+
+
+@pytest.mark.parametrize("scheme_name, kept", [
+    # serial, no acceleration: b reads x = 0, 0.5 and writes x̃ = 0.5, 0.625; a = x/2 + 1 = 1.25
+    ("serial-implicit", {"output": {"a": 1.25, "b": 0.625}, "input": {"a": 1.25, "b": 0.5}}),
+    # parallel: (a, b) reads x = (0, 0), (1, 0) and writes x̃ = (1, 0), (1, 0.5)
+    ("parallel-implicit", {"output": {"a": 1.0, "b": 0.5}, "input": {"a": 1.0, "b": 0.0}}),
+])
+@pytest.mark.parametrize("accepted_value", ["output", "input"])
+def test_a_window_accepted_unconverged_keeps_the_chosen_value(scheme_name, kept, accepted_value):
+    """accepted_value = "output" keeps x̃ (the default), "input" keeps x; the next window starts from it.
+
+    Two iterations per window (max_iterations = 2, on_max_iterations = "continue"), values by hand.
+    """
+    calls = []
+    a = Recorder("A", "b", "a", 0.5, 1.0, calls)
+    b = Recorder("B", "a", "b", 0.5, 0.0, calls)
+    data = [cp.Data("a", "G", 1, "A", ("B",)), cp.Data("b", "G", 1, "B", ("A",))]
+    options = {} if accepted_value == "output" else {"accepted_value": accepted_value}
+    scheme = cp.build_scheme({"scheme": scheme_name, "order": ["A", "B"], "verbose": False, "max_iterations": 2,
+                              "on_max_iterations": "continue", "acceleration": {"type": "none"},
+                              "convergence": [{"type": "relative", "limit": 1e-14}], **options}, [a, b], data)
+    scheme.advance_window(1.0)
+    for name, value in kept[accepted_value].items():
+        assert scheme.latest(name)[0, 0] == pytest.approx(value, rel=1e-15)
+        assert a.accepted[0][name][0, 0] == pytest.approx(value, rel=1e-15)
+    seen = []
+    a.solve = lambda inputs: seen.append(inputs["b"].copy()) or {"a": 0.5 * inputs["b"] + 1.0}
+    scheme.advance_window(1.0)
+    assert seen[0][0, 0] == pytest.approx(kept[accepted_value]["b"], rel=1e-15)
+
+
+def test_accepted_value_names_its_choices():
+    with pytest.raises(ValueError, match=r"coupling\.accepted_value = 'last'.*'output', 'input'"):
+        cp.load_config({"accepted_value": "last"})
