@@ -82,8 +82,8 @@ class CouplingScheme:
         config: A :class:`CouplingConfig` or a ``[coupling]`` table (dict).
         participants: The participants (a sequence, or a mapping name -> participant).
         data: The coupling data.
-        comm: MPI communicator (default: ``MPI.COMM_WORLD`` if mpi4py is
-            available, else serial).
+        comm: MPI communicator (default: :func:`coupling.parallel.default_comm`,
+            ``MPI.COMM_WORLD`` under MPI, else serial without importing mpi4py).
         stream: Where progress lines go (default: ``sys.stdout``).
         surrogate: Optional surrogate model of the same coupled problem for
             the quasi-Newton accelerations: an object with
@@ -1034,7 +1034,7 @@ def build_scheme(config: CouplingConfig | Mapping[str, Any],
         config: A :class:`CouplingConfig` or a ``[coupling]`` table (dict).
         participants: The participants.
         data: The coupling data.
-        comm: MPI communicator (default ``MPI.COMM_WORLD`` if available).
+        comm: MPI communicator (default: :func:`coupling.parallel.default_comm`).
         stream: Destination of the progress lines (default ``sys.stdout``).
         surrogate: Optional surrogate model for the quasi-Newton prior
             (see :class:`CouplingScheme`).
