@@ -202,3 +202,18 @@ def test_a_window_accepted_unconverged_keeps_the_chosen_value(scheme_name, kept,
 def test_accepted_value_names_its_choices():
     with pytest.raises(ValueError, match=r"coupling\.accepted_value = 'last'.*'output', 'input'"):
         cp.load_config({"accepted_value": "last"})
+
+
+def test_a_window_not_accepted_is_not_ended_but_the_run_finalizes():
+    """on_max_iterations = "return": the window is not accepted (no end_window), run() returns and finalizes."""
+    calls = []
+    a = Recorder("A", "b", "a", 0.5, 1.0, calls)
+    b = Recorder("B", "a", "b", 0.5, 0.0, calls)
+    data = [cp.Data("a", "G", 1, "A", ("B",)), cp.Data("b", "G", 1, "B", ("A",))]
+    scheme = cp.build_scheme({"order": ["A", "B"], "verbose": False, "max_iterations": 2,
+                              "on_max_iterations": "return",
+                              "convergence": [{"type": "relative", "limit": 1e-14}]}, [a, b], data)
+    result = scheme.run(t_end=1.0, dt=0.5)
+    assert not result.converged and scheme.time == 0.0
+    assert not [c for c in calls if c[1] == "end_window"]
+    assert calls[-2:] == [("A", "finalize"), ("B", "finalize")]
