@@ -17,15 +17,19 @@ points) and runs the participants:
   met; **explicit** schemes do one sweep per window.
 
 Time-dependent runs (:meth:`CouplingScheme.run`) split ``[t, t_end]`` into
-windows of length ``dt``.  In each window of an implicit scheme every
-participant's state is saved (``save_state``) before the first iteration and
-restored (``load_state``) before every further one (``state_reload =
-"iteration"``, the default; with ``"window"`` each solve continues from the
-previous iteration's state and states are restored only when a window is
-retaken), and ``advance(t, dt)`` is called before every solve.  The initial
+windows of length ``dt``.  Each window starts with every participant's
+``begin_window(t, dt)``; in an implicit scheme every participant's state is
+then saved (``save_state``) and restored (``load_state``) before every
+further iteration (``state_reload = "iteration"``, the default; with
+``"window"`` each solve continues from the previous iteration's state and
+states are restored only when a window is retaken); an accepted window ends
+with every participant's ``end_window(accepted)`` (the call sequence:
+:class:`coupling.participant.Participant`).  The initial
 guess of a window is the last value of the previous one (constant
 extrapolation; ``extrapolation_order = 1``: linear, ``2``: quadratic, from the last
-two or three windows).
+two or three windows).  A window keeps, for its accelerated data, the last
+values the participants wrote (``x̃``, ``accepted_value = "output"``) or read
+(``x``, ``"input"``).
 
 With a residual ``r = x̃ - x``, the iteration stops with
 :class:`CouplingDivergedError` if a data's values or residual are not finite,
@@ -58,7 +62,7 @@ from coupling.linearization import LinearizedPrior
 from coupling.mapping import Mapping as DataMapping
 from coupling.mapping import as_points, build_mapping
 from coupling.parallel import default_comm
-from coupling.participant import Data, Participant
+from coupling.participant import Data, Participant, uses_advance
 from coupling.records import (CouplingResult, IterationRecord, RecordedSolve, Recording,
                               WindowRecord, format_progress, write_records)
 from coupling.serialization import load_npz, save_npz
@@ -79,8 +83,8 @@ class CouplingScheme:
         config: A :class:`CouplingConfig` or a ``[coupling]`` table (dict).
         participants: The participants (a sequence, or a mapping name -> participant).
         data: The coupling data.
-        comm: MPI communicator (default: ``MPI.COMM_WORLD`` if mpi4py is
-            available, else serial).
+        comm: MPI communicator (default: :func:`coupling.parallel.default_comm`,
+            ``MPI.COMM_WORLD`` under MPI, else serial without importing mpi4py).
         stream: Where progress lines go (default: ``sys.stdout``).
         surrogate: Optional surrogate model of the same coupled problem for
             the quasi-Newton accelerations: an object with
@@ -140,6 +144,7 @@ class CouplingScheme:
         self.history: list[WindowRecord] = []
         self.recording: Recording | None = Recording() if self.config.record_data else None
         self.result: CouplingResult | None = None
+        self._initialized = False      # initialize() called, finalize() not yet
 
     # ------------------------------------------------------------------ setup checks
     def _check_participants(self, participants: Any) -> dict[str, Participant]:
@@ -334,7 +339,8 @@ class CouplingScheme:
         if t is not None:
             if self.implicit and iteration > 1 and self.config.state_reload == "iteration":
                 self._call(name, "load_state", states[name])
-            self._call(name, "advance", t, dt)
+            if uses_advance(self.participants[name]):    # the earlier protocol: before every solve
+                self._call(name, "advance", t, dt)
         inputs = {d: self._mappings[(d, name)](self.values[d]) for d in self._reads[name]}
         recorded_inputs = {k: v.copy() for k, v in inputs.items()} if self.recording else None
         start = _time.perf_counter()
@@ -461,8 +467,10 @@ class CouplingScheme:
         """Iterate one time window (``t is None``: a steady solve) until its status ends it."""
         transient = t is not None
         rec = WindowRecord(window=self.window, time=t, dt=dt)
+        self._initialize()
         if transient:
             self._initial_guess(t, dt)
+            self._begin_window(t, dt)
         states = self._save_window_states(transient)
         x = self.layout.concat(self.values)
         first_r: dict[str, float] = {}
@@ -501,6 +509,39 @@ class CouplingScheme:
             self._window_end(t)
         self._extrapolate(t, dt)
 
+    def _initialize(self) -> None:
+        """Call every participant's ``initialize()`` before the first window (or the first after finalize)."""
+        if not self._initialized:
+            for name in self.order:
+                self.participants[name].initialize()
+            self._initialized = True
+
+    def _begin_window(self, t: float, dt: float) -> None:
+        """Call ``begin_window(t, dt)`` once on every participant but those of the earlier protocol."""
+        for name in self.order:
+            if not uses_advance(self.participants[name]):
+                self.participants[name].begin_window(t, dt)
+
+    def _accept_window(self, x: np.ndarray) -> None:
+        """Keep the window's ``accepted_value`` and tell every participant (``end_window``)."""
+        if self.config.accepted_value == "input" and self.layout.size:
+            self.values.update(self.layout.split(x))    # what the last sweep read
+        for name in self.order:
+            accepted = {d: self.mapped(d, name) for d in self._reads[name]}
+            accepted.update({d: self.values[d].copy() for d in self._writes[name]})
+            self.participants[name].end_window(accepted)
+
+    def finalize(self) -> None:
+        """Call every participant's ``finalize()`` (:meth:`solve` and :meth:`run` do it when they return).
+
+        Call it after the last :meth:`advance_window`.  A later window calls
+        ``initialize()`` again.
+        """
+        if self._initialized:
+            for name in self.order:
+                self.participants[name].finalize()
+            self._initialized = False
+
     def _save_window_states(self, transient: bool) -> dict[str, Any]:
         """Every participant's state at the window start, if it is restored or recorded."""
         states: dict[str, Any] = {}
@@ -529,12 +570,14 @@ class CouplingScheme:
             self._print(format_progress(itrec, transient) + "  max iterations reached")
             if self.config.on_max_iterations == "continue":
                 self._close_acceleration_window(rec, x)
+                self._accept_window(x)
         else:
             itrec.converged = True
             rec.converged, rec.reason = True, status
             if status == "converged":
                 self._close_acceleration_window(rec, x)
             self._print(format_progress(itrec, transient))
+            self._accept_window(x)
 
     def _close_acceleration_window(self, rec: WindowRecord, x: np.ndarray) -> None:
         """Give the acceleration the window's last iterate; record the columns it keeps and drops."""
@@ -608,6 +651,7 @@ class CouplingScheme:
         self.window += 1
         self._finish_window(rec, windows)
         self.result = CouplingResult.from_windows(windows, list(self.data))
+        self.finalize()
         return self.result
 
     def run(self, t_end: float, dt: float) -> CouplingResult:
@@ -638,6 +682,7 @@ class CouplingScheme:
             if not self._advance(dt, windows):
                 break
         self.result = CouplingResult.from_windows(windows, list(self.data))
+        self.finalize()
         return self.result
 
     def advance_window(self, dt: float) -> WindowRecord:
@@ -1002,7 +1047,7 @@ def build_scheme(config: CouplingConfig | Mapping[str, Any],
         config: A :class:`CouplingConfig` or a ``[coupling]`` table (dict).
         participants: The participants.
         data: The coupling data.
-        comm: MPI communicator (default ``MPI.COMM_WORLD`` if available).
+        comm: MPI communicator (default: :func:`coupling.parallel.default_comm`).
         stream: Destination of the progress lines (default ``sys.stdout``).
         surrogate: Optional surrogate model for the quasi-Newton prior
             (see :class:`CouplingScheme`).

@@ -167,8 +167,8 @@ def test_sigint_keeps_the_checkpoint_and_resume_finishes(tmp_path):
     assert ref.wait(timeout=600) == 0, ref.stdout.read()
     out = tmp_path / "res"
     # SIGINT arrives at the start of window 4 (window 3 is checkpointed)
-    proc = paused_gelcell(common + ["--out", str(out)], target="gelcell.coupled.participants.GelParticipant.advance",
-                          call=4)
+    proc = paused_gelcell(common + ["--out", str(out)],
+                          target="gelcell.coupled.participants.GelParticipant.begin_window", call=4)
     signal_when_paused(proc, signal.SIGINT)
     assert proc.returncode != 0
     assert (tmp_path / "res.partial" / "checkpoint.npz").is_file()
