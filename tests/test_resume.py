@@ -7,8 +7,10 @@ depends on is in the checkpoint: the quasi-Newton columns and weights, the
 extrapolation history, the participants' unknowns and displacement history,
 the step controller, and whether each Newton solver's unknowns are still its
 last solution, where the next solve takes its linear path); on 2 ranks to
-1e-10 (MUMPS schedules its parallel factorisation dynamically, so two runs
-differ in round-off, which the coupling tolerance 1e-10 bounds).
+1e-10 (MUMPS schedules its parallel factorisation dynamically, so two
+uninterrupted runs differ in round-off, which the coupling tolerance 1e-10
+bounds: measured up to 8e-11 of a quantity's largest value, and by one
+iteration in some windows, so on several ranks the counts are not compared).
 
 The interruptions land in different places: early (before window 2),
 inside a coupling iteration (SIGINT), a crash of a participant's solve,
@@ -137,27 +139,39 @@ def crash():
     raise Crash("simulated crash of a participant's solve")
 
 
-def gel_solves_before(series: dict, window: int) -> int:
-    """The gel's solves in windows 1 .. window - 1 (one per coupling iteration)."""
-    counts = COMM.bcast(None if series is None else [int(i) for i in series["iterations"]], root=0)
-    return sum(counts[1:window])
+def in_window(monkeypatch, window: int, owner, name: str, call: int, action) -> None:
+    """Run ``action()`` at the ``call``-th call of ``owner.name`` within the ``window``-th window attempt."""
+    calls = [0, 0]                              # window attempts, calls within the window
+    original_window, original = PartitionedBackend.window, getattr(owner, name)
+
+    def hooked_window(self, t, dt):
+        calls[0] += 1
+        return original_window(self, t, dt)
+
+    def hooked(*args, **kwargs):
+        if calls[0] == window:
+            calls[1] += 1
+            if calls[1] == call:
+                action()
+        return original(*args, **kwargs)
+    monkeypatch.setattr(PartitionedBackend, "window", hooked_window)
+    monkeypatch.setattr(owner, name, hooked)
 
 
 #: (id, the windows the checkpoint holds, settings, where the interruption lands, the exception it raises)
 CASES = [
-    ("sigterm-before-window-2", 1, "fixed", lambda mp, s: on_call(mp, PartitionedBackend, "window", 2,
-                                                               lambda: signal_self(signal.SIGTERM)), Interrupted),
-    ("sigint-in-iteration-3-of-window-5", 4, "fixed", lambda mp, s: on_call(
-        mp, GelParticipant, "solve", gel_solves_before(s, 5) + 3, lambda: signal_self(signal.SIGINT)), Interrupted),
-    ("crash-in-window-7", 6, "fixed", lambda mp, s: on_call(mp, CellParticipant, "solve",
-                                                         gel_solves_before(s, 7) + 1, crash),
+    ("sigterm-before-window-2", 1, "fixed", lambda mp: on_call(mp, PartitionedBackend, "window", 2,
+                                                            lambda: signal_self(signal.SIGTERM)), Interrupted),
+    ("sigint-in-iteration-3-of-window-5", 4, "fixed", lambda mp: in_window(
+        mp, 5, GelParticipant, "solve", 3, lambda: signal_self(signal.SIGINT)), Interrupted),
+    ("crash-in-window-7", 6, "fixed", lambda mp: in_window(mp, 7, CellParticipant, "solve", 1, crash),
      CouplingDivergedError),
     # frames at t = 0 and after windows 3 and 6: the third is that of window 6
-    ("sigterm-writing-frame-of-window-6", 5, "fixed", lambda mp, s: on_call(
+    ("sigterm-writing-frame-of-window-6", 5, "fixed", lambda mp: on_call(
         mp, gelcell.run.transient, "write_frame", 3, lambda: signal_self(signal.SIGTERM)), Interrupted),
     # checkpoints at t = 0 and after every window: the fifth is that of window 4
-    ("sigterm-writing-checkpoint-of-window-4", 3, "fixed", lambda mp, s: while_checkpointing(mp, 5), Interrupted),
-    ("sigterm-after-a-rejected-step", 1, "adaptive", lambda mp, s: after_rejection(mp, signal.SIGTERM), Interrupted),
+    ("sigterm-writing-checkpoint-of-window-4", 3, "fixed", lambda mp: while_checkpointing(mp, 5), Interrupted),
+    ("sigterm-after-a-rejected-step", 1, "adaptive", lambda mp: after_rejection(mp, signal.SIGTERM), Interrupted),
 ]
 
 
@@ -168,7 +182,7 @@ def test_resumed_run_repeats_the_uninterrupted_one(tmp_path_factory, monkeypatch
     reference, summary = uninterrupted[kind]
     out = shared(tmp_path_factory, name)
     with monkeypatch.context() as mp:
-        hook(mp, reference)
+        hook(mp)
         with pytest.raises(error) as raised:
             run(settings, out)
     if error is CouplingDivergedError:         # the failed solve ends the coupling with its cause
@@ -185,7 +199,8 @@ def test_resumed_run_repeats_the_uninterrupted_one(tmp_path_factory, monkeypatch
         for c in COLUMNS:                       # bit for bit, iteration counts and residuals included
             assert np.array_equal(series[c], reference[c]), (c, series[c], reference[c])
     else:
-        assert list(series["iterations"]) == list(reference["iterations"])
+        # two uninterrupted runs on 2 ranks already differ by one iteration in some windows (measured):
+        # the iteration counts are not compared, the quantities are
         for c in COLUMNS:
             if c not in ("iterations", "residual"):
                 scale = max(float(np.max(np.abs(reference[c]))), 1e-300)
