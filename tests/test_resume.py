@@ -5,8 +5,9 @@ must repeat the uninterrupted run: in serial bit for bit, the coupling
 iterations of every window included (every piece of state the next window
 depends on is in the checkpoint: the quasi-Newton columns and weights, the
 extrapolation history, the participants' unknowns and displacement history,
-the step controller, and whether each Newton solver's unknowns are still its
-last solution, where the next solve takes its linear path); on 2 ranks to
+the step controller, whether each Newton solver's unknowns are still its
+last solution, where the next solve takes its linear path, and the coupling's
+window records, so that its logs cover the whole run); on 2 ranks to
 1e-10 (MUMPS schedules its parallel factorisation dynamically, so two
 uninterrupted runs differ in round-off, which the coupling tolerance 1e-10
 bounds: measured up to 8e-11 of a quantity's largest value, and by one
@@ -21,6 +22,7 @@ to itself where the test patches in a hook, so that it lands exactly there.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import time
@@ -62,6 +64,12 @@ def read_series(directory) -> dict:
         return {c: h5[c][()] for c in COLUMNS}
 
 
+def coupling_log(directory, name: str) -> list[dict]:
+    """A coupling log of the run (coupling-NAME.json) without the wall times."""
+    with open(os.path.join(directory, "coupling", f"coupling-{name}.json")) as fh:
+        return [{k: v for k, v in row.items() if k != "solve_time"} for row in json.load(fh)]
+
+
 def shared(tmp_path_factory, name: str) -> str:
     path = COMM.bcast(str(tmp_path_factory.mktemp(name)) if COMM.rank == 0 else None, root=0)
     return os.path.join(path, "run")
@@ -80,7 +88,7 @@ def uninterrupted(tmp_path_factory):
     for name, settings in (("fixed", FIXED), ("adaptive", adaptive_settings())):
         directory = shared(tmp_path_factory, name)
         summary = run(settings, directory)
-        out[name] = (read_series(directory) if COMM.rank == 0 else None, summary)
+        out[name] = (read_series(directory) if COMM.rank == 0 else None, summary, directory)
     return out
 
 
@@ -179,7 +187,7 @@ CASES = [
 def test_resumed_run_repeats_the_uninterrupted_one(tmp_path_factory, monkeypatch, uninterrupted, name, done, kind,
                                                    hook, error):
     settings = FIXED if kind == "fixed" else adaptive_settings()
-    reference, summary = uninterrupted[kind]
+    reference, summary, reference_dir = uninterrupted[kind]
     out = shared(tmp_path_factory, name)
     with monkeypatch.context() as mp:
         hook(mp)
@@ -195,12 +203,18 @@ def test_resumed_run_repeats_the_uninterrupted_one(tmp_path_factory, monkeypatch
         return
     series = read_series(out)
     assert len(series["t"]) == len(reference["t"])
+    logs = {name: (coupling_log(out, name), coupling_log(reference_dir, name)) for name in ("iterations",
+                                                                                             "convergence")}
     if COMM.size == 1:
         for c in COLUMNS:                       # bit for bit, iteration counts and residuals included
             assert np.array_equal(series[c], reference[c]), (c, series[c], reference[c])
+        for name, (mine, theirs) in logs.items():       # the coupling's logs cover the whole run
+            assert mine == theirs, name
     else:
         # two uninterrupted runs on 2 ranks already differ by one iteration in some windows (measured):
         # the iteration counts are not compared, the quantities are
+        mine, theirs = logs["iterations"]
+        assert [r["window"] for r in mine] == [r["window"] for r in theirs]
         for c in COLUMNS:
             if c not in ("iterations", "residual"):
                 scale = max(float(np.max(np.abs(reference[c]))), 1e-300)
