@@ -43,6 +43,7 @@ from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
 
 from cell import forms
+from femtools.canonical import CanonicalOrder
 from femtools.functions import quadrature_measure, set_function, von_mises
 from femtools.interface import InterfaceNodes
 from femtools.linalg import NewtonSolver, assemble_residual_vector, gather_csr, jacobian_at_rest, schur_complement
@@ -411,6 +412,21 @@ class NeoHookeanCellSolver(FieldSolver):
                      self._newton.history)
         if self._pins is not None:
             self._check_rigid_modes()
+
+    def _canonical_order(self) -> CanonicalOrder:
+        if not hasattr(self, "_canonical"):
+            self._canonical = CanonicalOrder(self.u.function_space)
+        return self._canonical
+
+    def checkpoint_state(self) -> dict:
+        """The displacement in the partition-independent order (``femtools.canonical``), and whether it is
+        still the last solve's solution (the next solve's linear path starts there)."""
+        return {"u": self._canonical_order().gather(self.u.x.array), "newton": self._newton.checkpoint_state()}
+
+    def load_checkpoint_state(self, state: typing.Mapping) -> None:
+        """Restore a state written by :meth:`checkpoint_state` (any partition)."""
+        self.u.x.array[:] = self._canonical_order().scatter(state["u"])
+        self._newton.load_checkpoint_state(state.get("newton", {}))
 
     def interface_data(self, name: str) -> dict[str, np.ndarray]:
         """``{"force": (N, gdim), "displacement": (N, gdim)}``: nodal forces on the cell (units s * L0, see the

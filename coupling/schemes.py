@@ -43,6 +43,7 @@ rank 0 so that every rank takes the same decision.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import hashlib
 import math
 import os
@@ -101,7 +102,7 @@ class CouplingScheme:
         acceleration: The :class:`Acceleration`.
         time: Start of the next time window.
         window: Index of the next window.
-        history: Records of every window run since construction (or restore).
+        history: Records of every window run since construction (a checkpoint carries them).
         recording: The :class:`Recording` if ``record_data`` is set, else ``None``.
         result: The result of the last :meth:`solve` / :meth:`run`.
     """
@@ -866,7 +867,7 @@ class CouplingScheme:
 
         Saved: time and window index, the current value of every data, the
         acceleration's complete state (columns, past windows, relaxation,
-        preconditioner weights, inverse Jacobian) and, if
+        preconditioner weights, inverse Jacobian), the window records (:attr:`history`) and, if
         ``include_participants``, each participant's ``checkpoint_state()`` on every
         rank (states must consist of numpy arrays, numbers, strings, lists,
         tuples and dicts; participants raising ``NotImplementedError`` are skipped),
@@ -902,6 +903,8 @@ class CouplingScheme:
                 "values": {n: v.copy() for n, v in self.values.items()},
                 "window_ends": [[t, ends] for t, ends in self.window_ends],
                 "acceleration": self.acceleration.state_dict(),
+                # the records too: the resumed run's iteration logs cover the whole run
+                "history": [dataclasses.asdict(rec) for rec in self.history],
                 "participants": participant_states, "extra": self.comm.gather(extra, root=0)}
 
     @staticmethod
@@ -952,6 +955,7 @@ class CouplingScheme:
                             for t, v in state.get("window_ends", [])]
         self.time = float(state["time"])
         self.window = int(state["window"])
+        self.history = [WindowRecord.from_dict(rec) for rec in state.get("history", [])]
         if include_participants and state["participants"]:
             if int(state["ranks"]) != self.comm.Get_size():
                 raise ValueError(f"{path}: participant states were saved on {state['ranks']} ranks, "

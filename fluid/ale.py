@@ -275,12 +275,14 @@ class MovingStokesSolver(StokesSolver):
         mixed, order = self._orders()
         state = {f"state_{k}": v for k, v in mixed.gather(self.w.x.array).items()}
         state["mesh"] = order.gather(self.mesh_displacement.x.array)
+        state["newton"] = self.newton.checkpoint_state()        # the linear path's starting point
         return state
 
     def load_checkpoint_state(self, state) -> None:
         mixed, order = self._orders()
         mixed.scatter({k: state[f"state_{k}"] for k in ("V", "P")}, self.w.x.array)
         self.mesh_displacement.x.array[:] = order.scatter(state["mesh"])
+        self.newton.load_checkpoint_state(state.get("newton", {}))
 
     @property
     def stats(self) -> dict:

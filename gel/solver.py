@@ -620,25 +620,29 @@ class PoroelasticGelSolver(FieldSolver):
             state.update(self.history.state())
         return state
 
-    def checkpoint_state(self) -> dict[str, np.ndarray]:
+    def _canonical_orders(self) -> None:
+        if not hasattr(self, "_canonical"):
+            self._canonical = MixedCanonical(self.W, FIELDS)
+            self._canonical_u = CanonicalOrder(self._sub[1][0])
+
+    def checkpoint_state(self) -> dict:
         """The state in the partition-independent node order (``femtools.canonical``), same on every rank.
 
         A run restarted on another partition (or rank count) reads it back
         with :meth:`load_checkpoint_state`.
         """
-        if not hasattr(self, "_canonical"):
-            self._canonical = MixedCanonical(self.W, FIELDS)
-            self._canonical_u = CanonicalOrder(self._sub[1][0])
+        self._canonical_orders()
         state = {f"state_{k}": v for k, v in self._canonical.gather(self.state.x.array).items()}
         if self.transient:
             state.update(past_0=self._canonical_u.gather(self.history.past[0].x.array),
                          past_1=self._canonical_u.gather(self.history.past[1].x.array),
                          length=np.array(self.history.length), step=self.history.step_state())
+        state["newton"] = self._newton.checkpoint_state()      # the linear path's starting point
         return state
 
     def load_checkpoint_state(self, state: typing.Mapping[str, np.ndarray]) -> None:
         """Restore a state written by :meth:`checkpoint_state` (any partition)."""
-        self.checkpoint_state()          # builds the canonical orders
+        self._canonical_orders()
         self._canonical.scatter({k: state[f"state_{k}"] for k in FIELDS}, self.state.x.array)
         if self.transient:
             local = {f"past_{k}": self._canonical_u.scatter(state[f"past_{k}"]) for k in (0, 1)}
@@ -650,6 +654,7 @@ class PoroelasticGelSolver(FieldSolver):
                 self._newton.invalidate_jacobian()
                 self._jacobian_cache = None
             self._update_velocity()
+        self._newton.load_checkpoint_state(state.get("newton", {}))
 
     def set_state(self, state: typing.Mapping[str, np.ndarray]) -> None:
         """Restore a state returned by ``get_state`` on this rank (copies from it)."""

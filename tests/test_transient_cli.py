@@ -102,13 +102,12 @@ def test_interrupted_run_resumes_to_the_same_result(shared_tmp_path, settings, c
 
     Adaptive BDF2: the checkpoint carries the coupling's quasi-Newton columns,
     the extrapolation history, the gel's displacement history and the step
-    controller's state.  The two runs agree to round-off, not bit for bit:
-    under MPI MUMPS schedules its parallel factorisation dynamically, and in
-    serial an optimised BLAS (OpenBLAS, docs/stack.md) rounds differently
-    when the same data sit elsewhere in memory; each coupling iteration's
-    result then moves within the coupling tolerance (measured ~3e-11 in serial,
-    ~2e-11 between two MPI runs).  So the quantities are compared to 1e-9, the
-    bound that the coupling tolerance (1e-10 per window) implies.  Quasi-Newton
+    controller's state.  Under MPI the two runs agree to round-off, not bit
+    for bit: MUMPS schedules its parallel factorisation dynamically, and each
+    coupling iteration's result then moves within the coupling tolerance.  So
+    the quantities are compared to 1e-9, the bound that the coupling tolerance
+    (1e-10 per window) implies; in serial the runs are identical bit for bit
+    (tests/test_resume.py asserts that).  Quasi-Newton
     columns that are not restored show in the first resumed window's iteration
     count (measured: 25 restored, 18 without them); round-off moves it by at
     most one.  The coupling library's own restart (columns, weights,

@@ -45,7 +45,6 @@ import numpy as np
 
 import coupling as cp
 from cell import NeoHookeanCellSolver
-from femtools.canonical import CanonicalOrder
 from femtools.timestepping import WindowClock
 from fluid import StokesSolver
 from gel import PoroelasticGelSolver
@@ -282,13 +281,10 @@ class CellParticipant(cp.Participant):
         self.solver.displacement.x.array[:] = state["u"]
 
     def checkpoint_state(self):
-        if not hasattr(self, "_canonical"):
-            self._canonical = CanonicalOrder(self.solver.displacement.function_space)
-        return {"u": self._canonical.gather(self.solver.displacement.x.array)}
+        return self.solver.checkpoint_state()
 
     def load_checkpoint_state(self, state) -> None:
-        self.checkpoint_state()
-        self.solver.displacement.x.array[:] = self._canonical.scatter(state["u"])
+        self.solver.load_checkpoint_state(state)
 
     def jacobian(self):
         """d(force, cell_displacement)/d(displacement): the cell's Steklov-Poincare operator at rest."""
