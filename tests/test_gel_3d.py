@@ -23,6 +23,7 @@ from mpi4py import MPI
 
 import ufl
 from dolfinx import fem
+from dolfinx.mesh import create_mesh, meshtags
 
 from femtools.functions import integrate, von_mises
 from femtools.interface import InterfaceNodes
@@ -30,6 +31,7 @@ from femtools.mesh import BOTTOM, LEFT, RIGHT, TOP, rectangle_mesh
 from gel.parameters import GelParameters
 from gel.solver import PoroelasticGelSolver
 from gel_cases import X0, X1, Y0, Y1, Z0, Z1, box_mesh
+from mpi_run import run_mpi
 from test_gel import l2, rates
 from test_gel_transient import C_V, M_D, PRM as TERZAGHI_PRM, terzaghi_consolidation, terzaghi_pressure
 
@@ -401,3 +403,46 @@ def test_slab_reproduces_the_2d_solution(kinematics):
               f"rate {np.log2(coarse[key] / fine[key]):.2f}")
     for key in coarse:
         assert fine[key] < 5e-3 and fine[key] <= coarse[key] / 2, (key, coarse[key], fine[key])
+
+
+# --------------------------------------------------------------------------
+# 1 and 2 ranks
+# --------------------------------------------------------------------------
+@pytest.mark.mpi
+@pytest.mark.parametrize("kinematics", ["small", "finite"])
+def test_same_answer_on_one_and_two_ranks(kinematics):
+    """A 3D box with fluid and cell interfaces, two time steps: the interface outputs (replicated,
+    in the rank-independent node order) on 1 and 2 ranks agree to the solver's tolerance."""
+    one = run_mpi("gel3d_mpi.py", 1, [kinematics])
+    two = run_mpi("gel3d_mpi.py", 2, [kinematics])
+    assert np.allclose(one["points"], two["points"], rtol=0.0, atol=1e-12)      # the same node order
+    for key in ("interstitial", "mixture", "pressure", "displacement"):
+        a, b = np.array(one[key]), np.array(two[key])
+        err = np.abs(a - b).max() / np.abs(a).max()
+        print(f"3D {kinematics}: {key} 1 vs 2 ranks {err:.1e}")
+        assert a.shape == b.shape and err < 1e-9, f"{key}: 1 vs 2 ranks differ by {err:.2e}"
+    for key, value in one["norms"].items():
+        assert abs(value - two["norms"][key]) <= 1e-9 * abs(value), key
+
+
+# --------------------------------------------------------------------------
+# bad 3D input
+# --------------------------------------------------------------------------
+def test_bad_3d_input_is_refused_naming_it():
+    prm = GelParameters.viscous_units()
+    msh, ft = box_mesh((0, 0, 0), (1, 1, 1), (1, 1, 1))
+    with pytest.raises(ValueError, match="component must be in 0..2"):
+        PoroelasticGelSolver(msh, ft, prm, no_slip=Z0, symmetry=[(X0, 3)])
+    gel = PoroelasticGelSolver(msh, ft, prm, no_slip=Z0, fluid_interfaces={"top": Z1}, cell_interfaces={"side": X1})
+    n = gel.interface_points("side").shape[0]
+    with pytest.raises(ValueError, match=r"stiffness of 'side' must be \(%d, %d\)" % (3 * n, 3 * n)):
+        gel.set_interface_stiffnesses({"side": np.eye(2 * n)})
+    with pytest.raises(ValueError, match="shape"):
+        gel.set_interface_data("top", traction=np.zeros((gel.interface_points("top").shape[0], 2)))
+    # triangles in space (a surface mesh) are neither a plane-strain nor a 3D gel
+    domain = ufl.Mesh(ufl.VectorElement("Lagrange", ufl.Cell("triangle", geometric_dimension=3), 1))
+    cells = np.array([[0, 1, 2]], dtype=np.int64) if COMM.rank == 0 else np.empty((0, 3), dtype=np.int64)
+    x = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 1.0]]) if COMM.rank == 0 else np.empty((0, 3))
+    surface = create_mesh(COMM, cells, x, domain)
+    with pytest.raises(ValueError, match="mesh must be"):
+        PoroelasticGelSolver(surface, meshtags(surface, 1, np.empty(0, np.int32), np.empty(0, np.int32)), prm)
