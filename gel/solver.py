@@ -519,8 +519,16 @@ class PoroelasticGelSolver(FieldSolver):
         psi = ufl.TestFunction(self.Q2)
         ds_all = quadrature_measure("ds", self.mesh, degree=self.quadrature_degree)
         phi_f = 1 - forms.solid_fraction(u, self.coefficients)
-        self._phi_f_num = fem.form(phi_f * psi * ds_all)
-        self._phi_f_den = fem.form(psi * ds_all)
+        if self.dim == 2:
+            # weights int psi_i ds (h/6 at the vertices, 2h/3 at the midpoint of a P2 edge)
+            self._phi_f_num = fem.form(phi_f * psi * ds_all)
+            self._phi_f_den = fem.form(psi * ds_all)
+        else:
+            # int psi_i dA is zero for the vertex functions of a P2 triangle: weights int psi_i^2 dA,
+            # the diagonal of the boundary mass matrix
+            chi = ufl.TrialFunction(self.Q2)
+            self._phi_f_num = fem.form(phi_f * chi * psi * ds_all)
+            self._phi_f_den = fem.form(chi * psi * ds_all)
         self._p_expr = fem.Expression(p, self.Q2.element.interpolation_points())
         self._p2 = fem.Function(self.Q2)
         # the nodal pressure is read on the fluid interfaces only: interpolate on their cells
@@ -972,11 +980,22 @@ class PoroelasticGelSolver(FieldSolver):
         return out
 
     # -- nodal helpers ---------------------------------------------------
-    def _phi_f_nodal(self, scalar_nodes: InterfaceNodes) -> np.ndarray:
-        num = fem_petsc.assemble_vector(self._phi_f_num)
-        den = fem_petsc.assemble_vector(self._phi_f_den)
-        for vec in (num, den):
+    def _boundary_weights(self, form) -> PETSc.Vec:
+        """int (.) psi_i ds (2D), or the diagonal int (.) psi_i^2 ds of the boundary mass matrix (3D)."""
+        if self.dim == 2:
+            vec = fem_petsc.assemble_vector(form)
             vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+            return vec
+        A = fem_petsc.assemble_matrix(form)
+        A.assemble()
+        vec = A.getDiagonal()
+        A.destroy()
+        return vec
+
+    def _phi_f_nodal(self, scalar_nodes: InterfaceNodes) -> np.ndarray:
+        """phi_f at the interface nodes: its average over the boundary facets around each node,
+        weighted as in :meth:`_boundary_weights` (positive weights; rank-independent)."""
+        num, den = self._boundary_weights(self._phi_f_num), self._boundary_weights(self._phi_f_den)
         a, b = scalar_nodes.from_array(num.array), scalar_nodes.from_array(den.array)
         num.destroy()
         den.destroy()

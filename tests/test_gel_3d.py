@@ -33,6 +33,7 @@ from gel.solver import PoroelasticGelSolver
 from gel_cases import X0, X1, Y0, Y1, Z0, Z1, box_mesh
 from mpi_run import run_mpi
 from test_gel import l2, rates
+from test_gel_jacobian import FLOOR as JACOBIAN_FLOOR, _check_second_order as check_second_order
 from test_gel_transient import C_V, M_D, PRM as TERZAGHI_PRM, terzaghi_consolidation, terzaghi_pressure
 
 COMM = MPI.COMM_WORLD
@@ -371,21 +372,23 @@ def _slab_solution(kinematics, n, dim):
         owned, bs = V.dofmap.index_map.size_local, V.dofmap.index_map_bs
         points = np.vstack(COMM.allgather(V.tabulate_dof_coordinates()[:owned, :2]))
         out[name] = points, np.vstack(COMM.allgather(f.x.array[:owned * bs].reshape(-1, bs)))
+    out["phi_f v_f on top"] = X[:, :2], gel.interface_data("top")["superficial_velocity"]   # replicated
     return out
 
 
 def _slab_difference(kinematics, n) -> dict:
     """max |3D - 2D| / max |2D| over the 3D nodes, each matched with the 2D node at its (x, y) (every
-    P2 node of the box lies above one of the rectangle's), for v_f, u, p, and the z components."""
+    P2 node of the box lies above one of the rectangle's), for v_f, u, p, the superficial velocity on the
+    fluid interface (its nodal phi_f: facet-weighted in 2D, psi^2-weighted in 3D), and the z components."""
     two, three = _slab_solution(kinematics, n, 2), _slab_solution(kinematics, n, 3)
     out = {}
-    for key in ("v_f", "u", "p"):
+    for key in ("v_f", "u", "p", "phi_f v_f on top"):
         (X2, d2), (X3, d3) = two[key], three[key]
         index = {tuple(k): i for i, k in enumerate(np.rint(X2 * 2 * n).astype(int).tolist())}
         match = np.array([index[tuple(k)] for k in np.rint(X3 * 2 * n).astype(int).tolist()])
         scale = np.abs(d2).max()
         out[key] = np.abs(d2[match] - d3[:, :d2.shape[1]]).max() / scale
-        if key != "p":
+        if key in ("v_f", "u"):
             out[key + " z"] = np.abs(d3[:, 2]).max() / scale
     return out
 
@@ -403,6 +406,57 @@ def test_slab_reproduces_the_2d_solution(kinematics):
               f"rate {np.log2(coarse[key] / fine[key]):.2f}")
     for key in coarse:
         assert fine[key] < 5e-3 and fine[key] <= coarse[key] / 2, (key, coarse[key], fine[key])
+
+
+# --------------------------------------------------------------------------
+# the interface Jacobian in 3D against central differences of the solver
+# --------------------------------------------------------------------------
+@pytest.mark.parametrize("kinematics,dt", [("small", None), ("finite", 0.5)], ids=["small-steady", "finite-step"])
+def test_interface_jacobian_3d_against_central_differences(kinematics, dt):
+    """A box with a fluid interface on top and a cell interface (random SPD stiffness) at y = 0:
+    central differences of the outputs for all inputs at once at eps and eps/2 against J @ delta,
+    the criteria of tests/test_gel_jacobian.py (O(eps^2) error, Richardson far better)."""
+    prm = GelParameters(phi_s0=0.2, xi=50.0, lambda_s=1.0, beta=0.5, eta=0.5, Ca=0.5)
+    msh, ft = box_mesh((0.0, 0.0, 0.0), (1.0, 0.5, 0.25), (4, 2, 1))
+    gel = PoroelasticGelSolver(msh, ft, prm, no_slip=Z0, symmetry=[(X0, 0)], kinematics=kinematics,
+                               fluid_interfaces={"top": Z1}, cell_interfaces={"cell": Y0},
+                               newton_reuse="never", newton_rtol=1e-13, transient=dt is not None)
+    if dt is not None:
+        gel.set_time_step(dt)                 # reset() keeps it: every solve is one step from rest
+    rng = np.random.default_rng(7)
+    n = 3 * gel.interface_points("cell").shape[0]
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    gel.set_interface_stiffnesses({"cell": (Q * rng.uniform(0.1, 1.0, n)) @ Q.T})
+    J = gel.interface_jacobian()
+    scale = {"traction": 0.05, "velocity": 0.05, "force": 0.0005, "displacement": 0.001}
+    data = {(name, key): scale[key] * rng.uniform(-1.0, 1.0, (gel.interface_points(name).shape[0], 3))
+            for name in ("top", "cell") for key in gel.input_names(name)}
+    d1, d2 = (_central_difference(gel, data, eps) for eps in (1.0, 0.5))
+    for key_out in d1:
+        if key_out[1] == "pressure":
+            continue
+        lin = sum(J[key_out, key_in] @ delta.ravel() for key_in, delta in data.items())
+        ref = np.abs(lin).max()
+        e1, e2 = (np.abs(d[key_out] - lin).max() / ref for d in (d1, d2))
+        rich = np.abs((4 * d2[key_out] - d1[key_out]) / 3 - lin).max() / ref
+        print(f"3D Jacobian {kinematics} {key_out}: errors {e1:.1e} (eps), {e2:.1e} (eps/2), Richardson {rich:.1e}")
+        if key_out[1] == "traction":
+            assert e1 <= JACOBIAN_FLOOR and e2 <= JACOBIAN_FLOOR, key_out
+        else:
+            check_second_order(f"{kinematics}: {key_out}", e1, e2, rich)
+
+
+def _central_difference(gel, data, eps) -> dict:
+    """(outputs(+eps data) - outputs(-eps data)) / (2 eps), each solve from rest."""
+    out = []
+    for sign in (1.0, -1.0):
+        gel.reset()
+        for (name, key), values in data.items():
+            gel.set_interface_data(name, **{key: sign * eps * values})
+        gel.solve()
+        out.append({(name, key): np.array(v).ravel() for name in gel.interface_names()
+                    for key, v in gel.interface_data(name).items()})
+    return {k: (out[0][k] - out[1][k]) / (2 * eps) for k in out[0]}
 
 
 # --------------------------------------------------------------------------
