@@ -722,7 +722,8 @@ class PoroelasticGelSolver(FieldSolver):
                 V0); its normal part is the volume flux into the fluid (I13).
             ``superficial_velocity`` (N, dim): phi_f v_f at the nodes,
                 with phi_f the boundary-lumped average of 1 - phi_s0/J around each
-                node (J is discontinuous between cells; the average is rank-independent).
+                node (weights int psi_i ds in 2D, int psi_i^2 ds in 3D; J is discontinuous
+                between cells; the average is rank-independent).
             ``interstitial_velocity`` (N, dim): nodal v_f = w + v_s.
             ``traction`` (N, dim): the total traction (phi_f sigma_f + phi_s sigma_s - p I) n
                 the gel applies there, in the stress unit s.  The gel enforces I14,
