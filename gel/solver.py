@@ -529,6 +529,7 @@ class PoroelasticGelSolver(FieldSolver):
             chi = ufl.TrialFunction(self.Q2)
             self._phi_f_num = fem.form(phi_f * chi * psi * ds_all)
             self._phi_f_den = fem.form(chi * psi * ds_all)
+            self._boundary_matrices = {}
         self._p_expr = fem.Expression(p, self.Q2.element.interpolation_points())
         self._p2 = fem.Function(self.Q2)
         # the nodal pressure is read on the fluid interfaces only: interpolate on their cells
@@ -987,11 +988,13 @@ class PoroelasticGelSolver(FieldSolver):
             vec = fem_petsc.assemble_vector(form)
             vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
             return vec
-        A = fem_petsc.assemble_matrix(form)
+        if form not in self._boundary_matrices:        # one sparsity pattern per form, kept
+            self._boundary_matrices[form] = fem_petsc.create_matrix(form)
+        A = self._boundary_matrices[form]
+        A.zeroEntries()
+        fem_petsc.assemble_matrix(A, form)
         A.assemble()
-        vec = A.getDiagonal()
-        A.destroy()
-        return vec
+        return A.getDiagonal()
 
     def _phi_f_nodal(self, scalar_nodes: InterfaceNodes) -> np.ndarray:
         """phi_f at the interface nodes: its average over the boundary facets around each node,
