@@ -75,7 +75,7 @@ class Device:
         self.cell = self._cell_solver(options) if params.with_cell else None
         self.setup_time = time.perf_counter() - t0
         self.participants = self._participants(time_scheme, inflow)
-        self.data = coupling_data(self.boundaries, gamma2, self.kinematics)
+        self.data = coupling_data(self.boundaries, gamma2, self.kinematics, dim=self.fluid.mesh.geometry.dim)
         self.scheme: cp.CouplingScheme | None = None
         self.result: cp.CouplingResult | None = None
         #: where the last solve's linearized prior came from: "computed", "disk cache", "reused" or None
