@@ -72,6 +72,7 @@ from dolfinx import fem, mesh as dmesh
 import coupling as cp
 from femtools.functions import integrate
 from femtools.interface import InterfaceNodes
+from femtools.timestepping import WindowClock
 from femtools.mesh import BOTTOM, LEFT, RIGHT, TOP, rectangle_mesh
 from fluid import FluidInterface, StokesSolver
 from gel import GelParameters, PoroelasticGelSolver
@@ -349,13 +350,17 @@ class LayerDevice:
             (as the device's default_robin_coefficient with C = 1).
         depth: None for the planar device; W > 0 for the slab 0 < z < W on
             tetrahedra (cells of about the same size h along z).
+        transient: the time-dependent gel (v_s = du/dt by ``time_scheme``,
+            ``"be"`` or ``"bdf2"``), started from rest and stepped by
+            :meth:`advance`; Stokes is quasi-static (the device's windows).
     """
 
     def __init__(self, case: LayerCase, n: int = 8, comm: MPI.Comm = MPI.COMM_WORLD,
-                 robin_coefficient: float | None = None, depth: float | None = None):
+                 robin_coefficient: float | None = None, depth: float | None = None,
+                 transient: bool = False, time_scheme: str = "be"):
         if depth is not None and not depth > 0:
             raise ValueError(f"LayerDevice: depth must be > 0 (the slab's extent along z) or None, got {depth!r}")
-        self.case, self.comm, self.depth = case, comm, depth
+        self.case, self.comm, self.depth, self.transient = case, comm, depth, bool(transient)
         self.closed_form = LayerClosedForm(case)
         prm = case.gel_parameters()
         viscosity = prm.viscosity
@@ -385,12 +390,13 @@ class LayerDevice:
             self.gel_mesh, self.gel_tags, prm, no_slip=b.gel_no_slip, symmetry=b.gel_symmetry,
             fluid_interfaces=b.fluid_interfaces,
             dirichlet=[([int(Tag.BOWL)], "u", 0.0)] if case.flow == "compression" else (),
-            body_forces=body_forces)
+            body_forces=body_forces, transient=self.transient)
         if not np.allclose(self.fluid.interface_points("Gamma1"), self.gel.interface_points("Gamma1"),
                            rtol=0.0, atol=1e-12):
             raise RuntimeError("layer: the fluid and gel nodes on Gamma1 differ")
         self.participants = [FluidParticipant(self.fluid, b.fluid_interfaces, self.alpha_n, self.alpha_t),
-                             GelParticipant(self.gel, b.fluid_interfaces, b.cell_interfaces)]
+                             GelParticipant(self.gel, b.fluid_interfaces, b.cell_interfaces,
+                                            time_scheme=time_scheme)]
         self.data = coupling_data(b, dim=dim)
         self.scheme: cp.CouplingScheme | None = None
         self.result: cp.CouplingResult | None = None
@@ -402,6 +408,17 @@ class LayerDevice:
         self.scheme = cp.build_scheme(config, self.participants, self.data, comm=self.comm)
         self.result = self.scheme.solve()
         return self.result
+
+    def advance(self, dt: float, config: typing.Mapping | None = None) -> cp.WindowRecord:
+        """One time window [t, t + dt] of the transient device, coupled to convergence (default: the
+        device's time-dependent serial IQN-ILS to 1e-10); ``config`` is read by the first window only."""
+        if not self.transient:
+            raise ValueError("LayerDevice.advance: build the device with transient=True")
+        if self.scheme is None:
+            config = dict(config or coupling_config(with_cell=False, transient=True))
+            config.setdefault("verbose", False)
+            self.scheme = cp.build_scheme(config, self.participants, self.data, comm=self.comm)
+        return self.scheme.advance_window(dt)
 
     # -- errors against the closed form ------------------------------------------------------
     def field_errors(self) -> dict[str, float]:
@@ -484,10 +501,13 @@ class LayerMonolithic:
     boundaries.  Solved by ``MonolithicSolver`` (Newton on V, P, w, u, p and
     the multiplier lam = T_F on Gamma1).  It has no body forces and no
     support that holds u_s but not v_f, so only the ``couette`` flow.
+    With ``transient`` it has the partitioned gel's time discretisation
+    (``time_scheme``) and is stepped by :meth:`advance`, one Newton solve per
+    window, from rest.
     """
 
     def __init__(self, case: LayerCase, n: int = 8, comm: MPI.Comm = MPI.COMM_WORLD,
-                 depth: float | None = None):
+                 depth: float | None = None, transient: bool = False, time_scheme: str = "be"):
         if case.flow != "couette":
             raise ValueError(f"LayerMonolithic: flow must be 'couette' (no body force, bonded support), "
                              f"got {case.flow!r}")
@@ -498,11 +518,22 @@ class LayerMonolithic:
         coefficients = MonolithicCoefficients(
             phi_s0=case.phi_s0, xi=case.xi, lambda_s=case.lambda_s, beta=case.beta, eta=case.eta, Ca=case.Ca,
             mu_c=1.0, lambda_c=1.0, stress_scale=case.Ca, displacement_scale=case.Ca)   # viscous units s = d = Ca
-        self.solver = MonolithicSolver(self.mesh, self.cell_tags, self.facet_tags, self.boundaries, coefficients)
+        self.solver = MonolithicSolver(self.mesh, self.cell_tags, self.facet_tags, self.boundaries, coefficients,
+                                       transient=transient)
+        self.clock = WindowClock(time_scheme)
+        self.time = 0.0
 
     def solve(self) -> int:
         """Newton to its tolerance; returns the number of iterations."""
         return self.solver.solve()
+
+    def advance(self, dt: float) -> int:
+        """One window [t, t + dt] (transient): the state at t becomes the newest past one; Newton's iterations."""
+        scheme, dt_previous = self.clock.enter(self.time, dt, self.solver.push_history)
+        self.solver.set_time_step(dt, scheme, dt_previous)
+        iterations = self.solver.solve()
+        self.time += dt
+        return iterations
 
     def field(self, name: str) -> fem.Function:
         """``V``, ``P``, ``v_f``, ``u``, ``p`` or ``lam`` on the whole mesh (each meaningful on its region)."""
