@@ -1,0 +1,335 @@
+"""Krylov solvers with multigrid preconditioners, behind the interface of ``femtools.linalg.DirectSolver``.
+
+A :class:`KrylovSolver` takes the place of a :class:`~femtools.linalg.DirectSolver` in
+:class:`~femtools.linalg.LinearSolver` and :class:`~femtools.linalg.NewtonSolver`
+(their ``linear_solver`` argument): ``set_operator(A)``, then ``factorize()``, which
+here sets up the preconditioner (the cost a factorisation has for a direct solver,
+paid when the operator changes and reused otherwise), then ``solve(b, x)`` for
+many right-hand sides.
+
+Tolerances.  A solve stops when the residual is ``rtol`` times the right-hand
+side's: ``|b - A x| <= rtol |b|`` in the unpreconditioned norm where the method
+supports it (CG, GMRES with right preconditioning), ``|B (b - A x)| <= rtol |B b|``
+for MINRES (which supports only the preconditioned norm; B is the
+preconditioner).  The absolute tolerance is zero: the device's loads are tiny
+(model.md §5) and no absolute floor is safe for all of them.  A zero right-hand
+side returns zero without iterating.  Warm start: the initial guess is the
+previous solution when that leaves a smaller residual than zero does.
+
+The factories build the solvers of the fields: :func:`elasticity_solver` (CG,
+GAMG with the rigid-body near-null space), :func:`stokes_solver` (MINRES,
+block-diagonal preconditioner: AMG on the velocity, the viscosity-scaled
+pressure mass matrix for the Schur complement).
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+import typing
+
+import numpy as np
+
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from dolfinx import fem
+from dolfinx.fem import petsc as fem_petsc
+
+from femtools.errors import LinearSolveError
+
+__all__ = ["KrylovSolver", "LinearSolveError", "rigid_body_modes", "owned_index_set", "elasticity_solver",
+           "stokes_solver", "linear_solver_choice", "SOLVER_KINDS"]
+
+_counter = itertools.count()
+
+#: the values of the field solvers' ``solver`` argument
+SOLVER_KINDS = ("direct", "iterative")
+
+#: default relative tolerance: far below the 1e-8 at which iterative and direct answers are compared
+DEFAULT_RTOL = 1e-11
+
+_REASONS: dict[int, str] = {}
+for _name in sorted(dir(PETSc.KSP.ConvergedReason)):      # of two aliases, the first in alphabetical order names it
+    if not _name.startswith("_") and isinstance(getattr(PETSc.KSP.ConvergedReason, _name), int):
+        _REASONS.setdefault(getattr(PETSc.KSP.ConvergedReason, _name), _name)
+
+
+def linear_solver_choice(solver: str, name: str) -> bool:
+    """True for ``solver="iterative"``, False for "direct"; ValueError naming ``name`` otherwise."""
+    if solver not in SOLVER_KINDS:
+        raise ValueError(f"{name}: solver must be one of {SOLVER_KINDS}, got {solver!r}")
+    return solver == "iterative"
+
+
+def reason_name(reason: int) -> str:
+    """PETSc's name of a KSP converged reason, e.g. ``DIVERGED_ITS``."""
+    return _REASONS.get(int(reason), str(int(reason)))
+
+
+class KrylovSolver:
+    """A PETSc Krylov method with a preconditioner set up once per operator.
+
+    ``ksp_type``: "cg", "minres", "gmres" (right preconditioned) or any PETSc KSP type.
+    ``options``: PETSc options of this solve (without a prefix): the
+    preconditioner's defaults of the factory, overridden by a user's
+    ``petsc_options``; ``ksp_rtol`` and ``ksp_max_it`` set the tolerance and the
+    iteration limit.  They are set in the options database under a unique
+    prefix, read at the first set-up and then removed (the database is shared).
+    ``preconditioner_form``: a bilinear form assembled (with ``bcs``, identity
+    on their rows) into the matrix the preconditioner is built from, each time
+    the operator changes; without it the operator itself.
+    ``near_null_space``: attached to the operator (GAMG reads it).
+    ``fields``: ``[(name, global indices owned by this rank (array or IS), near-null space or None)]``
+    for PCFIELDSPLIT (the near-null space is that of the field's block, in the index set's order).
+    """
+
+    def __init__(self, comm: MPI.Comm, name: str, ksp_type: str = "cg", options: dict | None = None,
+                 preconditioner_form=None, bcs: typing.Sequence = (), near_null_space=None,
+                 fields: typing.Sequence[tuple[str, np.ndarray]] = ()):
+        self.comm, self.name = comm, name
+        options = {str(k).lstrip("-"): v for k, v in dict(options or {}).items()}
+        self.rtol = float(options.pop("ksp_rtol", DEFAULT_RTOL))
+        self.max_it = int(options.pop("ksp_max_it", 1000))
+        if not (0.0 < self.rtol < 1.0):
+            raise ValueError(f"{name}: ksp_rtol must be in (0, 1), got {self.rtol}")
+        if self.max_it < 1:
+            raise ValueError(f"{name}: ksp_max_it must be >= 1, got {self.max_it}")
+        self.ksp = PETSc.KSP().create(comm)
+        # a method the user chose is kept; CG and MINRES need a symmetric operator (else GMRES)
+        self._symmetric_method = ksp_type if ("ksp_type" not in options and ksp_type in ("cg", "minres")) else None
+        self.ksp.setType(str(options.pop("ksp_type", ksp_type)))
+        self.ksp.setTolerances(rtol=self.rtol, atol=0.0, max_it=self.max_it)
+        self._fields = [(label, _index_set(i, comm, null)) for label, i, null in fields]
+        self._options, self._prefix = options, f"gelcell_krylov_{name}_{next(_counter)}_"
+        self.ksp.setOptionsPrefix(self._prefix)
+        self._P_form, self._bcs, self._P = preconditioner_form, list(bcs), None
+        self.near_null_space = near_null_space
+        self._A: PETSc.Mat | None = None
+        self._configured = False
+        self._last: PETSc.Vec | None = None
+        self.iterations: list[int] = []      # Krylov iterations of each solve
+        self.setups = 0
+        self.setup_time = 0.0
+        self.kind = "krylov"
+
+    # -- the DirectSolver interface -----------------------------------------------------
+    def set_operator(self, A: PETSc.Mat, reset: bool = False) -> None:
+        """Use ``A`` (its preconditioner is set up at the next :meth:`factorize`)."""
+        if reset or (self._A is not None and self._A.getSize() != A.getSize()):
+            self._last = None
+        if self.near_null_space is not None:
+            A.setNearNullSpace(self.near_null_space)
+        self._A = A
+
+    def factorize(self) -> None:
+        """Set up the preconditioner of the current operator (assembling its own matrix, if any)."""
+        t0 = time.perf_counter()
+        P = self._A
+        if self._P_form is not None:
+            if self._P is None:
+                self._P = fem_petsc.create_matrix(self._P_form)
+            self._P.zeroEntries()
+            fem_petsc.assemble_matrix(self._P, self._P_form, bcs=self._bcs)
+            self._P.assemble()
+            P = self._P
+        self.ksp.setOperators(self._A, P)
+        if not self._configured:
+            self._configure()
+        else:
+            self._set_up()
+        self.setups += 1
+        self.setup_time += time.perf_counter() - t0
+
+    def factorize_symmetric_if_possible(self) -> None:
+        """:meth:`factorize`; a CG solver whose operator is not symmetric to round-off switches to GMRES."""
+        if self._symmetric_method is not None:
+            from femtools.linalg import is_symmetric
+            method = self._symmetric_method if is_symmetric(self._A) else "gmres"
+            if method != self.ksp.getType():
+                self.ksp.setType(method)
+                self._set_norm()
+        self.factorize()
+
+    def solve(self, b: PETSc.Vec, x: PETSc.Vec) -> None:
+        """x = A^-1 b to the relative tolerance; raises :class:`LinearSolveError` if the method fails."""
+        b_norm = b.norm()
+        if b_norm == 0.0:
+            x.zeroEntries()              # the exact answer (PETSc would scale a warm start instead)
+            self.iterations.append(0)
+            return
+        self._initial_guess(b, x, b_norm)
+        self.ksp.solve(b, x)
+        reason, its = self.ksp.getConvergedReason(), self.ksp.getIterationNumber()
+        self.iterations.append(its)
+        if reason <= 0:
+            raise LinearSolveError(self.name, reason_name(reason), its)
+        if self._last is None or self._last.getSizes() != x.getSizes():
+            self._last = x.duplicate()
+        x.copy(self._last)
+
+    # -- helpers ----------------------------------------------------------------------
+    def _initial_guess(self, b: PETSc.Vec, x: PETSc.Vec, b_norm: float) -> None:
+        """Start from the last solution if its residual is below |b| (else from zero)."""
+        warm = self._last is not None and self._last.getSizes() == x.getSizes()
+        if warm:
+            r = b.duplicate()
+            self._A.mult(self._last, r)
+            r.aypx(-1.0, b)
+            warm = r.norm() < b_norm
+            r.destroy()
+        if warm:
+            self._last.copy(x)
+        self.ksp.setInitialGuessNonzero(bool(warm))
+
+    def _set_norm(self) -> None:
+        """The unpreconditioned residual norm where the method supports it."""
+        if self.ksp.getType() in ("gmres", "fgmres", "lgmres"):
+            self.ksp.setPCSide(PETSc.PC.Side.RIGHT)         # GMRES then monitors the true residual
+        if self.ksp.getType() in ("cg", "gmres", "fgmres", "lgmres", "bcgs"):
+            self.ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
+
+    def _set_up(self) -> None:
+        """Set up the preconditioner, and those of a field split's blocks (else done at the first solve)."""
+        self.ksp.setUp()
+        pc = self.ksp.getPC()
+        if pc.getType() == "fieldsplit":
+            for sub in pc.getFieldSplitSubKSP():
+                sub.setUp()
+
+    def _configure(self) -> None:
+        """Field splits, then the options (defaults and user's) from the database, then clean it."""
+        pc = self.ksp.getPC()
+        if self._fields:
+            pc.setType("fieldsplit")
+            pc.setFieldSplitIS(*self._fields)
+        self._set_norm()
+        opts = PETSc.Options()
+        for k, v in self._options.items():
+            opts[self._prefix + k] = v
+        try:
+            self.ksp.setFromOptions()
+            self.ksp.setTolerances(rtol=self.rtol, atol=0.0, max_it=self.max_it)
+            self._set_up()          # the preconditioners read their options here
+        finally:
+            for k in self._options:
+                opts.delValue(self._prefix + k)
+        self._configured = True
+
+
+def _index_set(indices, comm: MPI.Comm, near_null_space=None) -> PETSc.IS:
+    """An IS of the global ``indices`` (or the IS itself), carrying the block's near-null space
+    (PCFIELDSPLIT attaches it to the block's matrix)."""
+    if not isinstance(indices, PETSc.IS):
+        indices = PETSc.IS().createGeneral(np.asarray(indices, dtype=PETSc.IntType), comm=comm)
+    if near_null_space is not None:
+        indices.compose("nearnullspace", near_null_space)
+    return indices
+
+
+def owned_index_set(V: fem.FunctionSpace, local_dofs: np.ndarray) -> np.ndarray:
+    """The global indices of the owned entries of ``local_dofs`` (local unrolled dofs of V's vector)."""
+    imap, bs = V.dofmap.index_map, V.dofmap.index_map_bs
+    local = np.asarray(local_dofs, dtype=np.int64)
+    local = np.sort(local[local < imap.size_local * bs])
+    return (local + imap.local_range[0] * bs).astype(PETSc.IntType)
+
+
+def rigid_body_modes(V: fem.FunctionSpace, nodes: np.ndarray | None = None) -> PETSc.NullSpace:
+    """The rigid-body motions of a vector space as an orthonormal near-null space.
+
+    gdim translations and gdim (gdim - 1) / 2 rotations (3 modes in 2D, 6 in 3D),
+    interpolated at the dof coordinates; ``nodes``: the owned nodes in the order
+    of the vectors (default V's own).
+    """
+    gdim = V.mesh.geometry.dim
+    bs = V.dofmap.index_map_bs
+    if bs != gdim:
+        raise ValueError(f"rigid_body_modes: the space must be a {gdim}-vector space, its block size is {bs}")
+    n = V.dofmap.index_map.size_local
+    X = V.tabulate_dof_coordinates()[:n, :gdim]
+    if nodes is not None:
+        X = X[nodes]
+    fields = []
+    for i in range(gdim):
+        t = np.zeros((n, gdim))
+        t[:, i] = 1.0
+        fields.append(t)
+    for i, j in itertools.combinations(range(gdim), 2):
+        r = np.zeros((n, gdim))
+        r[:, i], r[:, j] = -X[:, j], X[:, i]
+        fields.append(r)
+    vecs = []
+    for f in fields:
+        v = PETSc.Vec().createMPI((n * bs, PETSc.DETERMINE), bsize=bs, comm=V.mesh.comm)
+        v.array[:] = f.ravel()
+        vecs.append(v)
+    _orthonormalize(vecs)
+    return PETSc.NullSpace().create(vectors=vecs, comm=V.mesh.comm)
+
+
+def _orthonormalize(vecs: list[PETSc.Vec]) -> None:
+    """Modified Gram-Schmidt, in place."""
+    for i, v in enumerate(vecs):
+        for w in vecs[:i]:
+            v.axpy(-w.dot(v), w)
+        v.scale(1.0 / v.norm())
+
+
+def _merged(defaults: dict, options: dict | None) -> dict:
+    """The factory's defaults overridden by a user's options (keys without a leading dash)."""
+    out = dict(defaults)
+    out.update({str(k).lstrip("-"): v for k, v in dict(options or {}).items()})
+    return out
+
+
+#: CG with smoothed-aggregation AMG: Chebyshev-Jacobi smoothing (symmetric: a fixed SPD preconditioner)
+ELASTICITY_OPTIONS = {"pc_type": "gamg", "pc_gamg_type": "agg", "pc_gamg_threshold": 0.02,
+                      "pc_gamg_square_graph": 0, "mg_levels_ksp_type": "chebyshev",
+                      "mg_levels_pc_type": "jacobi", "mg_levels_ksp_max_it": 2}
+
+
+def elasticity_solver(V: fem.FunctionSpace, name: str, options: dict | None = None,
+                      ksp_type: str = "cg") -> KrylovSolver:
+    """CG (or ``ksp_type``) with GAMG and the rigid-body near-null space of the vector space ``V``."""
+    return KrylovSolver(V.mesh.comm, name, ksp_type, _merged(ELASTICITY_OPTIONS, options),
+                        near_null_space=rigid_body_modes(V))
+
+
+#: block-diagonal preconditioner diag(AMG(A_uu), SSOR(M_p / mu)): SPD, as MINRES needs
+STOKES_OPTIONS = {"pc_fieldsplit_type": "additive",
+                  "fieldsplit_u_ksp_type": "preonly",
+                  **{"fieldsplit_u_" + k: v for k, v in ELASTICITY_OPTIONS.items()},
+                  "fieldsplit_p_ksp_type": "preonly", "fieldsplit_p_pc_type": "sor"}
+
+
+def stokes_solver(W: fem.FunctionSpace, name: str, preconditioner_form, bcs, options: dict | None = None,
+                  velocity: int = 0, pressure: int = 1) -> KrylovSolver:
+    """MINRES with PCFIELDSPLIT over the sub-spaces ``velocity`` and ``pressure`` of the mixed space ``W``.
+
+    ``preconditioner_form``: the block-diagonal form a(u, v) + (1/mu) (p, q), whose
+    pressure block (the mass matrix over the viscosity) is spectrally equivalent
+    to the Schur complement B A^-1 B^T of Taylor-Hood Stokes.
+    """
+    V, V_to_W = W.sub(velocity).collapse()
+    velocity_set, nodes = _node_ordered(W, V, V_to_W)
+    fields = [("u", velocity_set, rigid_body_modes(V, nodes)),
+              ("p", owned_index_set(W, W.sub(pressure).collapse()[1]), None)]
+    return KrylovSolver(W.mesh.comm, name, "minres", _merged(STOKES_OPTIONS, options),
+                        preconditioner_form=preconditioner_form, bcs=bcs, fields=fields)
+
+
+def _node_ordered(W: fem.FunctionSpace, V: fem.FunctionSpace, V_to_W) -> tuple[PETSc.IS, np.ndarray]:
+    """The sorted global indices in W of V's owned dofs, an IS of block size gdim (a node's components
+    are consecutive in W), and the owned nodes of V in that order."""
+    bs = V.dofmap.index_map_bs
+    pairs = np.asarray(V_to_W, dtype=np.int64)[:V.dofmap.index_map.size_local * bs].reshape(-1, bs)
+    n_owned_W = W.dofmap.index_map.size_local * W.dofmap.index_map_bs
+    if pairs.size and (pairs.max() >= n_owned_W or np.any(np.diff(pairs, axis=1) != 1)):
+        raise RuntimeError("the velocity dofs of a node are not consecutive owned dofs of the mixed space")
+    nodes = np.argsort(pairs[:, 0])
+    is_ = PETSc.IS().createGeneral((pairs[nodes].ravel() + W.dofmap.index_map.local_range[0])
+                                   .astype(PETSc.IntType), comm=W.mesh.comm)
+    is_.setBlockSize(bs)
+    return is_, nodes
+
