@@ -38,8 +38,8 @@ from dolfinx.fem import petsc as fem_petsc
 
 from femtools.errors import LinearSolveError
 
-__all__ = ["KrylovSolver", "LinearSolveError", "rigid_body_modes", "owned_index_set", "elasticity_solver",
-           "stokes_solver", "linear_solver_choice", "SOLVER_KINDS"]
+__all__ = ["KrylovSolver", "PinnedPressure", "LinearSolveError", "rigid_body_modes", "owned_index_set",
+           "elasticity_solver", "stokes_solver", "linear_solver_choice", "SOLVER_KINDS"]
 
 _counter = itertools.count()
 
@@ -297,26 +297,88 @@ def elasticity_solver(V: fem.FunctionSpace, name: str, options: dict | None = No
 
 
 #: block-diagonal preconditioner diag(AMG(A_uu), SSOR(M_p / mu)): SPD, as MINRES needs
-STOKES_OPTIONS = {"pc_fieldsplit_type": "additive",
+#: MINRES stops on the preconditioned residual, which weighs the pressure's near-null mode heavily:
+#: 1e-12 keeps the error below 1e-8 of the direct answer with a pinned pressure (1e-11 did not at 64^2)
+STOKES_OPTIONS = {"ksp_rtol": 1e-12, "pc_fieldsplit_type": "additive",
                   "fieldsplit_u_ksp_type": "preonly",
                   **{"fieldsplit_u_" + k: v for k, v in ELASTICITY_OPTIONS.items()},
                   "fieldsplit_p_ksp_type": "preonly", "fieldsplit_p_pc_type": "sor"}
 
 
 def stokes_solver(W: fem.FunctionSpace, name: str, preconditioner_form, bcs, options: dict | None = None,
-                  velocity: int = 0, pressure: int = 1) -> KrylovSolver:
+                  velocity: int = 0, pressure: int = 1, pinned: bool = False) -> KrylovSolver:
     """MINRES with PCFIELDSPLIT over the sub-spaces ``velocity`` and ``pressure`` of the mixed space ``W``.
 
     ``preconditioner_form``: the block-diagonal form a(u, v) + (1/mu) (p, q), whose
     pressure block (the mass matrix over the viscosity) is spectrally equivalent
-    to the Schur complement B A^-1 B^T of Taylor-Hood Stokes.
+    to the Schur complement B A^-1 B^T of Taylor-Hood Stokes.  ``pinned``: the
+    velocity's normal component is prescribed on the whole boundary and a
+    Dirichlet condition in ``bcs`` pins the pressure at a node; the pressure
+    block is then :class:`PinnedPressure` (the mass alone leaves the near-constant
+    pressure mode an eigenvalue O(h^2) and the iterations and the error grow as 1/h).
     """
     V, V_to_W = W.sub(velocity).collapse()
     velocity_set, nodes = _node_ordered(W, V, V_to_W)
-    fields = [("u", velocity_set, rigid_body_modes(V, nodes)),
-              ("p", owned_index_set(W, W.sub(pressure).collapse()[1]), None)]
-    return KrylovSolver(W.mesh.comm, name, "minres", _merged(STOKES_OPTIONS, options),
-                        preconditioner_form=preconditioner_form, bcs=bcs, fields=fields)
+    pressure_set = owned_index_set(W, W.sub(pressure).collapse()[1])
+    fields = [("u", velocity_set, rigid_body_modes(V, nodes)), ("p", pressure_set, None)]
+    if not pinned:
+        return KrylovSolver(W.mesh.comm, name, "minres", _merged(STOKES_OPTIONS, options),
+                            preconditioner_form=preconditioner_form, bcs=bcs, fields=fields)
+    n_owned, start = W.dofmap.index_map.size_local * W.dofmap.index_map_bs, W.dofmap.index_map.local_range[0]
+    constrained = np.concatenate([bc.dof_indices()[0] for bc in bcs] + [np.empty(0, np.int32)])
+    constrained = constrained[constrained < n_owned] + start
+    pins = np.flatnonzero(np.isin(pressure_set, constrained)).astype(PETSc.IntType)
+    return _PinnedStokes(W.mesh.comm, name, "minres", _merged(STOKES_OPTIONS, options),
+                         preconditioner_form=preconditioner_form, bcs=bcs, fields=fields, pins=pins)
+
+
+class PinnedPressure:
+    """The pressure block of an enclosed flow whose pressure is pinned at a node (a python PC).
+
+    S ~ (M - m m^T / |Omega|) / mu on all pressure dofs (m = M 1: the mass has no
+    constant mode in S); with the pinned rows removed this is the free lumped mass
+    D' = diag(m') / mu minus a rank-one term, whose inverse (Sherman-Morrison) is
+    D'^-1 + z z^T mu / m_pin, z the indicator of the free dofs and m_pin the lumped
+    mass of the pinned ones.  The pinned rows are identities.
+    """
+
+    def __init__(self, lumped: PETSc.Vec, pins: np.ndarray):
+        self.inverse = lumped.copy()
+        self.z = lumped.duplicate()
+        self.z.set(1.0)
+        self.z.array[pins] = 0.0
+        m_pin = lumped.comm.tompi4py().allreduce(float(lumped.array_r[pins].sum()), op=MPI.SUM)
+        self.inverse.reciprocal()
+        self.inverse.array[pins] = 1.0
+        self.weight = 1.0 / m_pin
+
+    def apply(self, pc, x: PETSc.Vec, y: PETSc.Vec) -> None:
+        y.pointwiseMult(x, self.inverse)
+        y.axpy(self.weight * self.z.dot(x), self.z)
+
+
+class _PinnedStokes(KrylovSolver):
+    """The Stokes solver whose pressure block is :class:`PinnedPressure` (see :func:`stokes_solver`)."""
+
+    def __init__(self, *args, pins: np.ndarray, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._pins = pins
+
+    def _set_up(self) -> None:
+        self.ksp.setUp()
+        pc = self.ksp.getPC()
+        u_ksp, p_ksp = pc.getFieldSplitSubKSP()
+        free = fem_petsc.assemble_matrix(self._P_form)        # the mass without the pin's identity row
+        free.assemble()
+        block = free.createSubMatrix(self._fields[1][1], self._fields[1][1])
+        lumped = block.getRowSum()
+        p_pc = p_ksp.getPC()
+        p_pc.setType("python")
+        p_pc.setPythonContext(PinnedPressure(lumped, self._pins))
+        for obj in (free, block, lumped):
+            obj.destroy()
+        u_ksp.setUp()
+        p_ksp.setUp()
 
 
 def _node_ordered(W: fem.FunctionSpace, V: fem.FunctionSpace, V_to_W) -> tuple[PETSc.IS, np.ndarray]:

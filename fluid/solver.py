@@ -269,7 +269,17 @@ class StokesSolver(FieldSolver):
             return None
         p, q = ufl.TrialFunctions(self.W)[1], ufl.TestFunctions(self.W)[1]
         # additive fieldsplit reads only the diagonal blocks: a's velocity block, the pressure mass
-        return stokes_solver(self.W, self.name, fem.form(a + p * q / self.mu * self.dx), bcs, petsc_options)
+        return stokes_solver(self.W, self.name, fem.form(a + p * q / self.mu * self.dx), bcs, petsc_options,
+                             pinned=self._pinned_enclosed())
+
+    def _pinned_enclosed(self) -> bool:
+        """Whether the normal velocity is prescribed on the whole boundary (then the pressure is pinned:
+        without a pin the constructor raised)."""
+        try:
+            self._check_pressure_determined()
+        except ValueError:
+            return True
+        return False
 
     def _check_arguments(self, mesh, viscosity: float, quadrature_degree, interfaces) -> dict:
         """Raise if the viscosity, the mesh's dimension, the quadrature degree or an interface spec is

@@ -22,11 +22,13 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 import ufl
-from dolfinx import fem
+from dolfinx import fem, mesh as dmesh
 
 from cell import NeoHookeanCellSolver, meshes
+from cell.meshes import BOTTOM as BOTTOM_C, LEFT, RIGHT, TOP as TOP_C
 from femtools.errors import LinearSolveError
 from fluid import FluidInterface, StokesSolver
+from fluid.ale import MovingStokesSolver
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "mpi_scripts"))
 from fluid_cases import BOTTOM, INLET, OUTLET, TOP, channel_mesh  # noqa: E402
@@ -150,3 +152,55 @@ def test_stokes_iterations_bounded_under_refinement():
 def test_stokes_zero_data_gives_zero():
     s = _solved(channel(0.2, "iterative", inflow=0.0))
     assert COMM.allreduce(float(np.abs(s.w.x.array).max(initial=0.0)), op=MPI.MAX) == 0.0
+
+
+def enclosed_mms(n: int, solver: str) -> StokesSolver:
+    """verification.md 1b on the unit square: no slip everywhere, the pressure pinned at a corner."""
+    msh = dmesh.create_unit_square(COMM, n, n)
+    msh.topology.create_connectivity(1, 2)
+    facets = dmesh.exterior_facet_indices(msh.topology)
+    ft = dmesh.meshtags(msh, 1, facets, np.full(facets.size, 1, dtype=np.int32))
+    x = ufl.SpatialCoordinate(msh)
+    pi, sin, cos = np.pi, ufl.sin, ufl.cos
+    f = ufl.as_vector((pi * (2 * pi**2 * (1 - 2 * cos(2 * pi * x[0])) * sin(2 * pi * x[1])
+                             - sin(pi * x[0]) * cos(pi * x[1])),
+                       pi * (-2 * pi**2 * (1 - 2 * cos(2 * pi * x[1])) * sin(2 * pi * x[0])
+                             - cos(pi * x[0]) * sin(pi * x[1]))))
+    return StokesSolver(msh, ft, viscosity=1.0, velocity_bcs=[(1, (0.0, 0.0))], body_force=f,
+                        pressure_pin=(0.0, 0.0), solver=solver)
+
+
+def test_enclosed_stokes_with_a_pinned_pressure():
+    """The pinned pressure's block (krylov.PinnedPressure) keeps the iterations bounded; direct answer."""
+    levels = []
+    for n in (8, 16, 32):
+        direct, iterative = _solved(enclosed_mms(n, "direct")), _solved(enclosed_mms(n, "iterative"))
+        assert relative_difference(iterative.w, direct.w) < 1e-8, n
+        levels.append(stokes_iterations(iterative))
+    print(f"\nenclosed Stokes MINRES iterations, 8, 16, 32 cells a side: {levels}")
+    assert bounded(levels), levels
+
+
+# --------------------------------------------------------------------------- Stokes on a moving mesh
+def moving_channel(h: float, solver: str) -> MovingStokesSolver:
+    """The sheared and stretched channel of tests/test_moving_fluid.py (mesh motion included)."""
+    msh, ft = meshes.rectangle(2.0, 1.0, h)
+    Hc = 1.2
+
+    def motion(X):
+        return np.vstack([0.3 * X[1], 0.2 * X[1]])
+
+    def profile(X):
+        y = X[1] + 0.2 * X[1]
+        return np.vstack([4 * y * (Hc - y) / Hc**2, 0 * y])
+    s = MovingStokesSolver(msh, ft, viscosity=0.7, velocity_bcs=[((LEFT, RIGHT), profile), ((BOTTOM_C, TOP_C), (0, 0))],
+                           mesh_boundaries={"walls": (LEFT, RIGHT, TOP_C)}, pressure_pin=(0.0, 0.0), solver=solver)
+    s.set_boundary_displacement("walls", motion)
+    return s
+
+
+def test_moving_stokes_and_mesh_motion_iterative_equal_direct():
+    direct, iterative = _solved(moving_channel(0.25, "direct")), _solved(moving_channel(0.25, "iterative"))
+    assert relative_difference(iterative.mesh_displacement, direct.mesh_displacement) < 1e-8
+    assert relative_difference(iterative.w, direct.w) < 1e-8
+    assert iterative.motion.solver.solver.iterations and iterative.newton.solver.iterations
