@@ -40,9 +40,12 @@ def _stokes(h, solver):
     return s, s.w, (lambda: s._solver.solver), (lambda: s.set_interface_data("wall", robin_normal=g))
 
 
-def _enclosed(h, solver, meshes={}):
+_MESHES: dict[int, object] = {}     # one mesh per size for both solvers (a partition may differ per call)
+
+
+def _enclosed(h, solver):
     n = int(round(1 / h))
-    msh = meshes.setdefault(n, unit_square(n))
+    msh = _MESHES.setdefault(n, unit_square(n))
     s = enclosed_mms(msh, solver)
     return s, s.w, (lambda: s._solver.solver), None
 
