@@ -45,7 +45,9 @@ _MESHES: dict[int, object] = {}     # one mesh per size for both solvers (a part
 
 def _enclosed(h, solver):
     n = int(round(1 / h))
-    msh = _MESHES.setdefault(n, unit_square(n))
+    if n not in _MESHES:
+        _MESHES[n] = unit_square(n)
+    msh = _MESHES[n]
     s = enclosed_mms(msh, solver)
     return s, s.w, (lambda: s._solver.solver), None
 
