@@ -39,7 +39,7 @@ from dolfinx.fem import petsc as fem_petsc
 from femtools.errors import LinearSolveError
 
 __all__ = ["KrylovSolver", "PinnedPressure", "LinearSolveError", "rigid_body_modes", "owned_index_set",
-           "elasticity_solver", "stokes_solver", "linear_solver_choice", "SOLVER_KINDS"]
+           "elasticity_solver", "stokes_solver", "gel_solver", "PressureSchur", "linear_solver_choice", "SOLVER_KINDS"]
 
 _counter = itertools.count()
 
@@ -80,14 +80,17 @@ class KrylovSolver:
     on their rows) into the matrix the preconditioner is built from, each time
     the operator changes; without it the operator itself.
     ``near_null_space``: attached to the operator (GAMG reads it).
+    ``preconditioned_norm``: stop on |B r| <= rtol |B b| (B the preconditioner) also for CG and GMRES:
+    for a system whose blocks have rows of very different scales, where |r| would weigh one block only.
     ``fields``: ``[(name, global indices owned by this rank (array or IS), near-null space or None)]``
     for PCFIELDSPLIT (the near-null space is that of the field's block, in the index set's order).
     """
 
     def __init__(self, comm: MPI.Comm, name: str, ksp_type: str = "cg", options: dict | None = None,
                  preconditioner_form=None, bcs: typing.Sequence = (), near_null_space=None,
-                 fields: typing.Sequence[tuple[str, np.ndarray]] = ()):
+                 fields: typing.Sequence[tuple[str, np.ndarray]] = (), preconditioned_norm: bool = False):
         self.comm, self.name = comm, name
+        self._preconditioned_norm = bool(preconditioned_norm)
         options = {str(k).lstrip("-"): v for k, v in dict(options or {}).items()}
         self.rtol = float(options.pop("ksp_rtol", DEFAULT_RTOL))
         self.max_it = int(options.pop("ksp_max_it", 1000))
@@ -183,7 +186,9 @@ class KrylovSolver:
         self.ksp.setInitialGuessNonzero(bool(warm))
 
     def _set_norm(self) -> None:
-        """The unpreconditioned residual norm where the method supports it."""
+        """The unpreconditioned residual norm where the method supports it (unless asked otherwise)."""
+        if self._preconditioned_norm:
+            return
         if self.ksp.getType() in ("gmres", "fgmres", "lgmres"):
             self.ksp.setPCSide(PETSc.PC.Side.RIGHT)         # GMRES then monitors the true residual
         if self.ksp.getType() in ("cg", "gmres", "fgmres", "lgmres", "bcgs"):
@@ -395,3 +400,102 @@ def _node_ordered(W: fem.FunctionSpace, V: fem.FunctionSpace, V_to_W) -> tuple[P
     is_.setBlockSize(bs)
     return is_, nodes
 
+
+
+#: block Gauss-Seidel over (w, u, p): AMG on the flow and the network blocks, PressureSchur on p
+GEL_OPTIONS = {"pc_fieldsplit_type": "multiplicative",
+               **{f"fieldsplit_{f}_ksp_type": "preonly" for f in ("w", "u", "p")},
+               **{f"fieldsplit_{f}_" + k: v for f in ("w", "u") for k, v in ELASTICITY_OPTIONS.items()}}
+
+
+def gel_solver(W: fem.FunctionSpace, name: str, preconditioner_form, mass_form, bcs,
+               options: dict | None = None) -> KrylovSolver:
+    """GMRES for the gel's mixture (w, u, p) = sub-spaces 0, 1, 2 of ``W``, block lower-triangular
+    preconditioner (PCFIELDSPLIT multiplicative): AMG on the flow block, AMG on the network block,
+    :class:`PressureSchur` on the pressure.
+
+    ``preconditioner_form``: the Jacobian plus, on the pressure block, the Darcy and
+    fixed-stress part of the Schur complement, (phi_f^2 / k) grad p . grad q + beta p q;
+    ``mass_form``: its viscous (Brinkman) part, (phi_f^2 / nu_e + beta) p q.  Stops on the
+    preconditioned residual (the blocks' rows have unrelated scales: model.md §5).
+    """
+    fields = []
+    for label, k in (("w", 0), ("u", 1)):
+        V, V_to_W = W.sub(k).collapse()
+        index_set, nodes = _node_ordered(W, V, V_to_W)
+        fields.append((label, index_set, rigid_body_modes(V, nodes)))
+    fields.append(("p", owned_index_set(W, W.sub(2).collapse()[1]), None))
+    return _GelKrylov(W.mesh.comm, name, "gmres", _merged(GEL_OPTIONS, options),
+                      preconditioner_form=preconditioner_form, bcs=bcs, fields=fields,
+                      preconditioned_norm=True, mass_form=mass_form)
+
+
+class PressureSchur:
+    """y = -(AMG(L_beta)^-1 x + D^-1 x): the gel's pressure Schur complement, inverted as a sum (a python PC).
+
+    S = B_w A_ww^-1 B_w^T + c0 B_u K^-1 B_u^T.  The Brinkman flow block A_ww = nu_e (viscous) + k
+    (drag) has S_flow^-1 ~ nu_e / phi_f^2 M^-1 + k / phi_f^2 L^-1 (the viscous and the Darcy
+    limits, summed: robust across the Brinkman length); the network adds the fixed-stress term
+    beta M, beta = c0 / K_dr.  L_beta = (phi_f^2 / k) L + beta M is solved by AMG, D is the
+    diagonal of (phi_f^2 / nu_e + beta) M.  The sign: S of the saddle point is negative.
+    """
+
+    def __init__(self, comm, L_beta: PETSc.Mat, diagonal: PETSc.Vec, options_prefix: str):
+        self.ksp = PETSc.KSP().create(comm)
+        self.ksp.setOptionsPrefix(options_prefix)
+        self.ksp.setType("preonly")
+        self.ksp.getPC().setType("gamg")
+        self.ksp.setOperators(L_beta)
+        self.ksp.setFromOptions()
+        self.update(L_beta, diagonal)
+
+    def update(self, L_beta: PETSc.Mat, diagonal: PETSc.Vec) -> None:
+        """Set up for new operators (the AMG's options are kept)."""
+        self.ksp.setOperators(L_beta)
+        self.ksp.setUp()
+        self.inverse = diagonal.copy()
+        self.inverse.reciprocal()
+        self.work = diagonal.duplicate()
+
+    #: the terms of the sum applied (the benchmark measures each alone)
+    terms = ("darcy", "viscous")
+
+    def apply(self, pc, x: PETSc.Vec, y: PETSc.Vec) -> None:
+        y.zeroEntries()
+        if "darcy" in self.terms:
+            self.ksp.solve(x, y)
+        if "viscous" in self.terms:
+            self.work.pointwiseMult(x, self.inverse)
+            y.axpy(1.0, self.work)
+        y.scale(-1.0)
+
+
+class _GelKrylov(KrylovSolver):
+    """The gel's solver: :class:`PressureSchur` on the pressure block (see :func:`gel_solver`)."""
+
+    def __init__(self, *args, mass_form, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._mass_form = mass_form
+        self._pressure: PressureSchur | None = None
+
+    def _set_up(self) -> None:
+        self.ksp.setUp()
+        pc = self.ksp.getPC()
+        subs = pc.getFieldSplitSubKSP()
+        p_set = self._fields[2][1]
+        self._L_beta = self._P.createSubMatrix(p_set, p_set, submat=getattr(self, "_L_beta", None))
+        mass = fem_petsc.assemble_matrix(self._mass_form)
+        mass.assemble()
+        block = mass.createSubMatrix(p_set, p_set)
+        diagonal = block.getDiagonal()
+        if self._pressure is None:
+            self._pressure = PressureSchur(self.comm, self._L_beta, diagonal, self._prefix + "fieldsplit_p_schur_")
+            p_pc = subs[2].getPC()
+            p_pc.setType("python")
+            p_pc.setPythonContext(self._pressure)
+        else:
+            self._pressure.update(self._L_beta, diagonal)
+        for obj in (mass, block):
+            obj.destroy()
+        for sub in subs:
+            sub.setUp()

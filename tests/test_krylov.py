@@ -3,7 +3,7 @@
 References: the direct (MUMPS) solve of the same discrete system, to 1e-8
 relative (the Krylov tolerance is 1e-11 relative to the right-hand side, and
 the preconditioned operators are well conditioned); the closed forms of the
-existing cases are then those of tests/test_cell.py and tests/test_fluid.py.
+existing cases are then those of tests/test_cell.py, tests/test_fluid.py and tests/test_gel.py.
 Iteration counts bounded under refinement and across the parameters are a
 property of the preconditioner: the bound asserted is the coarsest count
 times 1.5 plus 5 (a mesh-independent preconditioner; the counts seen grow by
@@ -27,8 +27,10 @@ from dolfinx import fem, mesh as dmesh
 from cell import NeoHookeanCellSolver, meshes
 from cell.meshes import BOTTOM as BOTTOM_C, LEFT, RIGHT, TOP as TOP_C
 from femtools.errors import LinearSolveError
+from femtools.mesh import BOTTOM as BOTTOM_G, LEFT as LEFT_G, RIGHT as RIGHT_G, TOP as TOP_G, rectangle_mesh
 from fluid import FluidInterface, StokesSolver
 from fluid.ale import MovingStokesSolver
+from gel import GelParameters, PoroelasticGelSolver
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "mpi_scripts"))
 from fluid_cases import BOTTOM, INLET, OUTLET, TOP, channel_mesh  # noqa: E402
@@ -209,3 +211,58 @@ def test_moving_stokes_and_mesh_motion_iterative_equal_direct():
     assert relative_difference(iterative.mesh_displacement, direct.mesh_displacement) < 1e-8
     assert relative_difference(iterative.w, direct.w) < 1e-8
     assert iterative.motion.solver.solver.iterations and iterative.newton.solver.iterations
+
+
+# --------------------------------------------------------------------------- the gel
+def gel_chamber(n: int, solver: str, prm: GelParameters | None = None, dt: float | None = None,
+                load: float = 1.0) -> PoroelasticGelSolver:
+    """The chamber of tests/test_gel.py (_scaled_problem): no-slip bottom, symmetry sides, fluid data on top;
+    ``dt``: one backward-Euler step from rest (the undrained start when dt is small)."""
+    prm = prm or GelParameters.viscous_units(Ca=3e-10)
+    msh, ft = rectangle_mesh(0.0, -0.5, 1.0, 0.0, n, n)
+    gel = PoroelasticGelSolver(msh, ft, prm, no_slip=BOTTOM_G, symmetry=[((LEFT_G, RIGHT_G), 0)],
+                               fluid_interfaces={"top": TOP_G}, solver=solver, transient=dt is not None)
+    X = gel.interface_points("top")
+    T = prm.Ca * np.column_stack([0.5 * np.sin(np.pi * X[:, 0]), -(1 + 0.3 * np.cos(np.pi * X[:, 0]))])
+    V = np.column_stack([0.2 + 0 * X[:, 0], -0.01 * X[:, 0]])
+    gel.set_interface_data("top", traction=load * T / prm.stress_scale, velocity=load * V)
+    if dt is not None:
+        gel.set_time_step(dt, scheme="be")
+    return gel
+
+
+def gel_iterations(g: PoroelasticGelSolver) -> int:
+    return g.newton.solver.iterations[0]
+
+
+@pytest.mark.parametrize("units", ["viscous", "paper"])
+def test_gel_iterative_equals_direct(units):
+    """GMRES with the block preconditioner gives the direct answer in both unit systems (model.md §5)."""
+    prm = GelParameters.viscous_units(Ca=3e-10) if units == "viscous" else GelParameters(Ca=3e-10)
+    direct, iterative = _solved(gel_chamber(8, "direct", prm)), _solved(gel_chamber(8, "iterative", prm))
+    assert relative_difference(iterative.state, direct.state) < 1e-8
+
+
+def test_gel_time_step_iterative_equals_direct():
+    direct, iterative = _solved(gel_chamber(8, "direct", dt=1e-6)), _solved(gel_chamber(8, "iterative", dt=1e-6))
+    assert relative_difference(iterative.state, direct.state) < 1e-8
+
+
+def test_gel_iterations_bounded_under_refinement_and_parameters():
+    """Three levels, at the device's xi = 4.5e4 (Darcy-dominated, Brinkman length 0.047), at xi / 1000
+    (Brinkman-dominated), at phi_s0 = 0.1, and a time step from rest of 1e-8 (undrained) and 1e4 (drained)."""
+    cases = {"device": {}, "xi / 1000": dict(prm=GelParameters.viscous_units(Ca=3e-10, xi=45.0)),
+             "phi_s0 0.1": dict(prm=GelParameters.viscous_units(Ca=3e-10, phi_s0=0.1)),
+             "dt 1e-8": dict(dt=1e-8), "dt 1e4": dict(dt=1e4)}
+    counts = {name: [gel_iterations(_solved(gel_chamber(n, "iterative", **kw))) for n in (8, 16, 32)]
+              for name, kw in cases.items()}
+    print(f"\ngel GMRES iterations, 8, 16, 32 cells a side: {counts}")
+    reference = counts["device"]
+    assert bounded(reference), counts
+    for name, levels in counts.items():
+        assert max(levels) <= 1.5 * reference[-1] + 5, (name, counts)
+
+
+def test_gel_zero_data_gives_zero():
+    s = _solved(gel_chamber(4, "iterative", load=0.0))
+    assert COMM.allreduce(float(np.abs(s.state.x.array).max(initial=0.0)), op=MPI.MAX) == 0.0
