@@ -9,7 +9,9 @@ second solve with new data where the case has some (Stokes: new Robin data;
 back-substitution or a warm-started Krylov solve), the Krylov iterations of each, and the relative difference of the two
 answers.  The cases are those of tests/test_krylov.py: the cell's quarter
 annulus (Lame), the Stokes channel with a Robin wall, the enclosed Stokes
-square with a pinned pressure.  Prints only.
+square with a pinned pressure, the gel's chamber (steady, and one backward-Euler
+step of 1e-6 from rest: the undrained start).  The gel's unit square has 1/h
+cells a side.  Prints only.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from mpi4py import MPI
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests"))
 import numpy as np  # noqa: E402
 
-from test_krylov import channel, enclosed_mms, lame_cell, relative_difference, unit_square  # noqa: E402
+from test_krylov import channel, enclosed_mms, gel_chamber, lame_cell, relative_difference, unit_square  # noqa: E402
 
 COMM = MPI.COMM_WORLD
 
@@ -52,7 +54,18 @@ def _enclosed(h, solver):
     return s, s.w, (lambda: s._solver.solver), None
 
 
-FIELDS = {"cell": _cell, "stokes": _stokes, "stokes_enclosed": _enclosed}
+def _gel(h, solver, dt=None):
+    s = gel_chamber(int(round(1 / h)), solver, dt=dt)
+    X = s.interface_points("top")
+    T = 3e-10 * np.column_stack([0.2 * np.cos(np.pi * X[:, 0]), -1 + 0 * X[:, 0]]) / s.params.stress_scale
+    return s, s.state, (lambda: s.newton.solver), (lambda: s.set_interface_data("top", traction=T))
+
+
+def _gel_step(h, solver):
+    return _gel(h, solver, dt=1e-6)
+
+
+FIELDS = {"cell": _cell, "stokes": _stokes, "stokes_enclosed": _enclosed, "gel": _gel, "gel_step": _gel_step}
 
 
 def measure(field: str, h: float) -> dict:
