@@ -26,7 +26,8 @@ from mpi4py import MPI
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests"))
 import numpy as np  # noqa: E402
 
-from test_krylov import channel, enclosed_mms, gel_chamber, lame_cell, relative_difference, unit_square  # noqa: E402
+from test_krylov import (channel, chamber_mesh, enclosed_mms, gel_chamber, lame_cell,  # noqa: E402
+                         relative_difference, unit_square)
 
 COMM = MPI.COMM_WORLD
 
@@ -42,20 +43,24 @@ def _stokes(h, solver):
     return s, s.w, (lambda: s._solver.solver), (lambda: s.set_interface_data("wall", robin_normal=g))
 
 
-_MESHES: dict[int, object] = {}     # one mesh per size for both solvers (a partition may differ per call)
+_MESHES: dict[tuple[str, int], object] = {}     # one mesh per size for both solvers (a partition may differ per call)
+
+
+def _mesh(kind, n):
+    """One mesh per kind and size for both solvers."""
+    if (kind, n) not in _MESHES:
+        _MESHES[kind, n] = unit_square(n) if kind == "square" else chamber_mesh(n)
+    return _MESHES[kind, n]
 
 
 def _enclosed(h, solver):
-    n = int(round(1 / h))
-    if n not in _MESHES:
-        _MESHES[n] = unit_square(n)
-    msh = _MESHES[n]
-    s = enclosed_mms(msh, solver)
+    s = enclosed_mms(_mesh("square", int(round(1 / h))), solver)
     return s, s.w, (lambda: s._solver.solver), None
 
 
 def _gel(h, solver, dt=None):
-    s = gel_chamber(int(round(1 / h)), solver, dt=dt)
+    n = int(round(1 / h))
+    s = gel_chamber(n, solver, dt=dt, mesh=_mesh("chamber", n))
     X = s.interface_points("top")
     T = 3e-10 * np.column_stack([0.2 * np.cos(np.pi * X[:, 0]), -1 + 0 * X[:, 0]]) / s.params.stress_scale
     return s, s.state, (lambda: s.newton.solver), (lambda: s.set_interface_data("top", traction=T))

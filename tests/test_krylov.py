@@ -214,12 +214,19 @@ def test_moving_stokes_and_mesh_motion_iterative_equal_direct():
 
 
 # --------------------------------------------------------------------------- the gel
+def chamber_mesh(n: int):
+    """The gel's chamber [0, 1] x [-0.5, 0], n x n cell pairs: build it once for the solvers compared
+    (create_rectangle's partition on 2 ranks may differ between calls)."""
+    return rectangle_mesh(0.0, -0.5, 1.0, 0.0, n, n)
+
+
 def gel_chamber(n: int, solver: str, prm: GelParameters | None = None, dt: float | None = None,
-                load: float = 1.0) -> PoroelasticGelSolver:
+                load: float = 1.0, mesh=None) -> PoroelasticGelSolver:
     """The chamber of tests/test_gel.py (_scaled_problem): no-slip bottom, symmetry sides, fluid data on top;
-    ``dt``: one backward-Euler step from rest (the undrained start when dt is small)."""
+    ``dt``: one backward-Euler step from rest (the undrained start when dt is small); ``mesh``: (mesh,
+    facet tags) of :func:`chamber_mesh` (default: built here)."""
     prm = prm or GelParameters.viscous_units(Ca=3e-10)
-    msh, ft = rectangle_mesh(0.0, -0.5, 1.0, 0.0, n, n)
+    msh, ft = mesh or chamber_mesh(n)
     gel = PoroelasticGelSolver(msh, ft, prm, no_slip=BOTTOM_G, symmetry=[((LEFT_G, RIGHT_G), 0)],
                                fluid_interfaces={"top": TOP_G}, solver=solver, transient=dt is not None)
     X = gel.interface_points("top")
@@ -239,12 +246,14 @@ def gel_iterations(g: PoroelasticGelSolver) -> int:
 def test_gel_iterative_equals_direct(units):
     """GMRES with the block preconditioner gives the direct answer in both unit systems (model.md §5)."""
     prm = GelParameters.viscous_units(Ca=3e-10) if units == "viscous" else GelParameters(Ca=3e-10)
-    direct, iterative = _solved(gel_chamber(8, "direct", prm)), _solved(gel_chamber(8, "iterative", prm))
+    mesh = chamber_mesh(8)
+    direct, iterative = (_solved(gel_chamber(8, kind, prm, mesh=mesh)) for kind in ("direct", "iterative"))
     assert relative_difference(iterative.state, direct.state) < 1e-8
 
 
 def test_gel_time_step_iterative_equals_direct():
-    direct, iterative = _solved(gel_chamber(8, "direct", dt=1e-6)), _solved(gel_chamber(8, "iterative", dt=1e-6))
+    mesh = chamber_mesh(8)
+    direct, iterative = (_solved(gel_chamber(8, kind, dt=1e-6, mesh=mesh)) for kind in ("direct", "iterative"))
     assert relative_difference(iterative.state, direct.state) < 1e-8
 
 
