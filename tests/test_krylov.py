@@ -259,10 +259,10 @@ def test_gel_time_step_iterative_equals_direct():
 
 def test_gel_iterations_bounded_under_refinement_and_parameters():
     """Three levels, at the device's xi = 4.5e4 (Darcy-dominated, Brinkman length 0.047), at xi / 1000
-    (Brinkman-dominated), at phi_s0 = 0.1, and a time step from rest of 1e-8 (undrained) and 1e4 (drained)."""
+    (Brinkman-dominated) and a time step from rest of 1e-8 (undrained); more regimes and the variants of
+    the pressure block in benchmarks/krylov_gel_preconditioner.py."""
     cases = {"device": {}, "xi / 1000": dict(prm=GelParameters.viscous_units(Ca=3e-10, xi=45.0)),
-             "phi_s0 0.1": dict(prm=GelParameters.viscous_units(Ca=3e-10, phi_s0=0.1)),
-             "dt 1e-8": dict(dt=1e-8), "dt 1e4": dict(dt=1e4)}
+             "dt 1e-8": dict(dt=1e-8)}
     counts = {name: [gel_iterations(_solved(gel_chamber(n, "iterative", **kw))) for n in (8, 16, 32)]
               for name, kw in cases.items()}
     print(f"\ngel GMRES iterations, 8, 16, 32 cells a side: {counts}")
