@@ -19,7 +19,9 @@ previous solution when that leaves a smaller residual than zero does.
 The factories build the solvers of the fields: :func:`elasticity_solver` (CG,
 GAMG with the rigid-body near-null space), :func:`stokes_solver` (MINRES,
 block-diagonal preconditioner: AMG on the velocity, the viscosity-scaled
-pressure mass matrix for the Schur complement).
+pressure mass matrix for the Schur complement; :class:`PinnedPressure` for an
+enclosed flow) and :func:`gel_solver` (GMRES, block lower-triangular
+preconditioner over (w, u, p), :class:`PressureSchur` on the pressure).
 """
 
 from __future__ import annotations
