@@ -65,7 +65,7 @@ def linear_solver_choice(solver: str, name: str) -> bool:
 
 
 def reason_name(reason: int) -> str:
-    """PETSc's name of a KSP converged reason, e.g. ``DIVERGED_ITS``."""
+    """petsc4py's name of a KSP converged reason, e.g. ``DIVERGED_MAX_IT``."""
     return _REASONS.get(int(reason), str(int(reason)))
 
 
