@@ -1,4 +1,4 @@
-"""The cell field solver: a plane-strain neo-Hookean solid (model.md sections 2, 5, 6).
+"""The cell field solver: a neo-Hookean solid, plane strain or 3D (model.md sections 2, 5, 6, 10).
 
 ``NeoHookeanCellSolver`` takes the displacement on the gel-cell interface Gamma2
 (Dirichlet) and returns the consistent nodal forces on the cell; with traction

@@ -7,7 +7,9 @@ unless ``order=1``.  Facet tags are the module constants below.
 * ``annulus(a, b, h)``: the ring a < r < b, full or a quarter (x, y > 0);
 * ``disk(radius, h)``: a disk, full or its upper half (y > 0);
 * ``block(length, height, n)``: a rectangle on a distorted triangle mesh;
-* ``rectangle(length, height, h)``: a rectangle meshed by gmsh (P2 geometry by default).
+* ``rectangle(length, height, h)``: a rectangle meshed by gmsh (P2 geometry by default);
+* ``ball(radius, h)``: a ball of tetrahedra (the 3D cell), full or cut by planes through its centre;
+* ``shell(a, b, h)``: the hollow sphere a < r < b, full or its octant x, y, z > 0.
 """
 
 from __future__ import annotations
@@ -16,6 +18,9 @@ import numpy as np
 
 from mpi4py import MPI
 
+import basix
+import ufl
+from dolfinx import fem
 from dolfinx import mesh as dmesh
 
 from femtools.gmshimport import import_gmsh
@@ -23,8 +28,8 @@ from femtools.mesh import model_to_mesh
 
 gmsh = import_gmsh()
 
-__all__ = ["INNER", "OUTER", "XAXIS", "YAXIS", "BOUNDARY", "FLAT",
-           "LEFT", "RIGHT", "BOTTOM", "TOP", "annulus", "disk", "block", "rectangle"]
+__all__ = ["INNER", "OUTER", "XAXIS", "YAXIS", "BOUNDARY", "FLAT", "PLANE_X", "PLANE_Y", "PLANE_Z",
+           "LEFT", "RIGHT", "BOTTOM", "TOP", "annulus", "disk", "block", "rectangle", "ball", "shell"]
 
 #: annulus: inner circle r = a, outer circle r = b, quarter edges on y = 0 and x = 0
 INNER, OUTER, XAXIS, YAXIS = 1, 2, 3, 4
@@ -32,6 +37,9 @@ INNER, OUTER, XAXIS, YAXIS = 1, 2, 3, 4
 BOUNDARY, FLAT = 1, 2
 #: block sides
 LEFT, RIGHT, BOTTOM, TOP = 1, 2, 3, 4
+#: 3D (ball, shell): the flat faces x = c_x, y = c_y, z = c_z through the centre (BOUNDARY,
+#: INNER, OUTER are the spherical surfaces as in 2D)
+PLANE_X, PLANE_Y, PLANE_Z = 5, 6, 7
 _DOMAIN = 100
 
 
@@ -41,29 +49,53 @@ def _check_positive(**kwargs) -> None:
             raise ValueError(f"{key} must be a positive number, got {value!r}")
 
 
-def _generate(comm: MPI.Comm, build, h: float, order: int):
-    """Run ``build(occ)`` on rank 0 (it returns ``{tag: [curves]}``), mesh and convert."""
+def _generate(comm: MPI.Comm, build, h: float, order: int, dim: int = 2, refine: int = 0):
+    """Run ``build(occ)`` on rank 0 (it returns the domain's entities of dimension ``dim`` and
+    ``model -> {tag: [boundary entities]}``), mesh, split ``refine`` times uniformly and convert."""
     if order not in (1, 2):
         raise ValueError(f"order must be 1 or 2, got {order!r}")
+    if int(refine) != refine or refine < 0:
+        raise ValueError(f"refine must be a non-negative integer, got {refine!r}")
     gmsh.initialize()
     try:
         gmsh.option.setNumber("General.Terminal", 0)
         if comm.rank == 0:
             gmsh.model.add("cell_test_mesh")
             occ = gmsh.model.occ
-            surfaces, curves = build(occ)
+            domain, boundary = build(occ)
             occ.synchronize()
-            gmsh.model.addPhysicalGroup(2, surfaces, _DOMAIN)
-            for tag, ids in curves(gmsh.model).items():
-                gmsh.model.addPhysicalGroup(1, ids, tag)
+            gmsh.model.addPhysicalGroup(dim, domain, _DOMAIN)
+            for tag, ids in boundary(gmsh.model).items():
+                gmsh.model.addPhysicalGroup(dim - 1, ids, tag)
             gmsh.option.setNumber("Mesh.MeshSizeMin", h)
             gmsh.option.setNumber("Mesh.MeshSizeMax", h)
-            gmsh.model.mesh.generate(2)
+            gmsh.model.mesh.generate(dim)
+            for _ in range(int(refine)):
+                gmsh.model.mesh.refine()
             gmsh.model.mesh.setOrder(order)
-        msh, _, facet_tags = model_to_mesh(gmsh.model, comm, 0, gdim=2)
+        msh, _, facet_tags = model_to_mesh(gmsh.model, comm, 0, gdim=dim)
     finally:
         gmsh.finalize()
+    if dim == 3:
+        _check_not_inverted(msh, h)
     return msh, facet_tags
+
+
+def _check_not_inverted(msh, h: float) -> None:
+    """Raise ValueError if a (curved) tetrahedron has det J <= 0 at a P2 node or quadrature point.
+
+    gmsh's curving of coarse tetrahedra onto a sphere seen from inside (a hollow sphere's
+    inner face) can invert some; such a mesh gives wrong normals and integrals.
+    """
+    cell = basix.CellType.tetrahedron
+    points = np.vstack([basix.create_lattice(cell, 2, basix.LatticeType.equispaced, True),
+                        basix.make_quadrature(cell, 4)[0]])
+    detj = fem.Expression(ufl.JacobianDeterminant(msh), points)
+    cells = np.arange(msh.topology.index_map(3).size_local, dtype=np.int32)
+    local = float(detj.eval(cells).min()) if cells.size else np.inf
+    if msh.comm.allreduce(local, op=MPI.MIN) <= 0:
+        raise ValueError(f"the curved mesh of size h={h} has inverted tetrahedra (det J <= 0); "
+                         f"choose another h or order=1")
 
 
 def _classify(model, rule) -> dict[int, list[int]]:
@@ -137,6 +169,83 @@ def disk(radius: float, h: float, centre=(0.0, 0.0), half: bool = False, order: 
         return surfaces, curves
 
     return _generate(comm, build, h, order)
+
+
+def _classify_faces(model, centre, radius_tag) -> dict[int, list[int]]:
+    """Group the model's surfaces: a flat face by its normal axis (PLANE_X, _Y, _Z), a spherical
+    face by ``radius_tag(r)`` of its distance r from ``centre``."""
+    groups: dict[int, list[int]] = {}
+    for _, f in model.getEntities(2):
+        lo, hi = model.getParametrizationBounds(2, f)
+        mid = 0.5 * (np.asarray(lo) + np.asarray(hi))
+        if model.getType(2, f) == "Plane":
+            axis = int(np.argmax(np.abs(model.getNormal(f, mid))))
+            tag = (PLANE_X, PLANE_Y, PLANE_Z)[axis]
+        else:
+            tag = radius_tag(np.linalg.norm(np.asarray(model.getValue(2, f, mid)) - centre))
+        groups.setdefault(tag, []).append(f)
+    return groups
+
+
+def _cut(occ, body, centre, size, planes):
+    """Keep the part of ``body`` with x_i > centre_i for every axis i in ``planes``."""
+    planes = sorted(set(int(p) for p in planes))
+    if any(p not in (0, 1, 2) for p in planes):
+        raise ValueError(f"planes must be axes 0, 1 or 2, got {planes!r}")
+    if not planes:
+        return body
+    lo = [c if i in planes else c - size for i, c in enumerate(centre)]
+    box = occ.addBox(*lo, *[size if i in planes else 2 * size for i in range(3)])
+    return occ.intersect(body, [(3, box)])[0]
+
+
+def ball(radius: float, h: float, centre=(0.0, 0.0, 0.0), planes=(), order: int = 2, refine: int = 0,
+         comm: MPI.Comm = MPI.COMM_WORLD):
+    """A ball of ``radius`` about ``centre`` (tetrahedra), the 3D counterpart of :func:`disk`.
+
+    Args:
+        planes: axes i (0, 1, 2) whose plane x_i = centre_i cuts the ball; the part
+            x_i > centre_i is kept (a half, quarter or eighth ball on symmetry planes).
+        refine: number of uniform splits of the mesh of size ``h`` (nested meshes
+            of size h / 2^refine, their new boundary nodes on the sphere).
+
+    Returns:
+        ``(mesh, facet_tags)`` with tags BOUNDARY (the spherical surface, as Gamma2)
+        and PLANE_X, PLANE_Y, PLANE_Z (the flat faces of the cut).
+    """
+    _check_positive(radius=radius, h=h)
+    c = np.asarray(centre, dtype=float).reshape(3)
+
+    def build(occ):
+        body = _cut(occ, [(3, occ.addSphere(*c, radius))], c, 2 * radius, planes)
+        return [t for _, t in body], lambda model: _classify_faces(model, c, lambda r: BOUNDARY)
+
+    return _generate(comm, build, h, order, dim=3, refine=refine)
+
+
+def shell(a: float, b: float, h: float, octant: bool = False, order: int = 2, refine: int = 0,
+          comm: MPI.Comm = MPI.COMM_WORLD):
+    """The hollow sphere ``a < r < b`` centred at the origin, the 3D counterpart of :func:`annulus`.
+
+    Args:
+        octant: only the eighth x, y, z > 0 (faces tagged PLANE_X, PLANE_Y, PLANE_Z).
+        refine: number of uniform splits, as for :func:`ball`.
+
+    Returns:
+        ``(mesh, facet_tags)`` with tags INNER (r = a), OUTER (r = b) (and the planes).
+    """
+    _check_positive(a=a, b=b, h=h)
+    if not a < b:
+        raise ValueError(f"need a < b, got a={a}, b={b}")
+    c = np.zeros(3)
+
+    def build(occ):
+        body, _ = occ.cut([(3, occ.addSphere(0, 0, 0, b))], [(3, occ.addSphere(0, 0, 0, a))])
+        body = _cut(occ, body, c, 2 * b, (0, 1, 2) if octant else ())
+        return [t for _, t in body], lambda model: _classify_faces(
+            model, c, lambda r: INNER if abs(r - a) < abs(r - b) else OUTER)
+
+    return _generate(comm, build, h, order, dim=3, refine=refine)
 
 
 def rectangle(length: float, height: float, h: float, order: int = 2, comm: MPI.Comm = MPI.COMM_WORLD):

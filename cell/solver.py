@@ -1,6 +1,7 @@
 """The neo-Hookean cell as a field solver (model.md sections 2, 3 and 6).
 
-The cell Omega_C is a compressible neo-Hookean solid in plane strain,
+The cell Omega_C is a compressible neo-Hookean solid, in plane strain on a
+triangle mesh and in three dimensions on a tetrahedral one (the same code),
 
     div_X P = 0 in Omega_C,   P = J sigma_c F^-T,
     sigma_c = mu_c J^-1 (F F^T - I) + lambda_c (J - 1) I,   F = I + grad_X u_c,
@@ -17,7 +18,7 @@ L0: u_c = d u_hat) and stresses in the unit ``s = stress_scale`` (in mu_s).
 s = d = 1 is the paper's unscaled form; s = d = Ca is the device scaling.
 
 Boundary conditions:
-  * interfaces (Gamma2): Dirichlet displacement u_hat = g, both components;
+  * interfaces (Gamma2): Dirichlet displacement u_hat = g, every component;
   * symmetry: u_hat[c] = 0 (zero normal displacement, zero tangential traction);
   * dirichlet (tests): prescribed u_hat, all or one component;
   * tractions (tests): dead load  P N = s t0  with N the reference outward normal;
@@ -26,6 +27,7 @@ Boundary conditions:
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
 import typing
@@ -41,6 +43,7 @@ from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
 
 from cell import forms
+from femtools.canonical import CanonicalOrder
 from femtools.functions import quadrature_measure, set_function, von_mises
 from femtools.interface import InterfaceNodes
 from femtools.krylov import elasticity_solver, linear_solver_choice
@@ -56,7 +59,10 @@ Tags = typing.Union[int, typing.Iterable[int]]
 
 
 class NeoHookeanCellSolver(FieldSolver):
-    """Plane-strain neo-Hookean cell: Dirichlet displacement in, nodal reaction forces out.
+    """Neo-Hookean cell (plane strain or 3D): Dirichlet displacement in, nodal reaction forces out.
+
+    Vectors have gdim components (the mesh's geometric dimension, 2 or 3):
+    interface arrays are (N, gdim), constants (gdim,) arrays.
 
     Args:
         mesh: the cell's mesh (reference configuration; P1 or P2 geometry).
@@ -67,7 +73,7 @@ class NeoHookeanCellSolver(FieldSolver):
         stress_scale: stress unit ``s`` in units of mu_s, > 0.
         displacement_scale: displacement unit ``d`` in units of L0, > 0.
         interfaces: ``{name: tags}``; Dirichlet-displacement interfaces (Gamma2).
-            Input ``"displacement"`` (N, 2) in units of d; output ``"force"``.
+            Input ``"displacement"`` (N, gdim) in units of d; output ``"force"``.
         robin_interfaces: ``{name: (tags, kappa)}``; Robin interfaces: the
             surroundings act as the given nodal forces f* plus springs of
             stiffness kappa (units s / L0) towards a displacement u*:
@@ -76,19 +82,20 @@ class NeoHookeanCellSolver(FieldSolver):
             cell, units s L0); outputs ``"force"`` (as for ``interfaces``) and
             ``"displacement"``.  kappa > 0 also holds the rigid modes.
         symmetry: ``[(tags, component)]``: u[component] = 0 on those facets
-            (a flat edge of the cell on a symmetry line; component 0 or 1).
+            (a flat edge or face of the cell on a symmetry line or plane; component
+            0 (x), 1 (y) or, in 3D, 2 (z)).
         dirichlet: ``[(tags, value)]`` or ``[(tags, value, component)]``:
             prescribed displacement in units of d; ``value`` a constant
-            ((2,) array, or a scalar with ``component``) or a callable
-            ``x -> (2, n)`` (or ``(n,)``) array as for ``Function.interpolate``.
+            ((gdim,) array, or a scalar with ``component``) or a callable
+            ``x -> (gdim, n)`` (or ``(n,)``) array as for ``Function.interpolate``.
         tractions: ``[(tags, value)]``: dead reference traction P N = s t0 on
-            those facets, ``t0`` in units of s; ``value`` a (2,) constant, a
-            callable ``x -> (2, n)`` (interpolated in P2) or a UFL expression
+            those facets, ``t0`` in units of s; ``value`` a (gdim,) constant, a
+            callable ``x -> (gdim, n)`` (interpolated in P2) or a UFL expression
             on this mesh (e.g. ``-p * ufl.FacetNormal(mesh)`` with ``p`` a
             ``fem.Constant``, which keeps a pressure exactly self-equilibrated).
         remove_rigid_modes: for pure traction problems (no interfaces,
-            symmetry or dirichlet): remove the three rigid-body modes by point
-            constraints, see below.
+            symmetry or dirichlet): remove the rigid-body modes (3 in 2D, 6 in
+            3D) by point constraints, see below.
         name: name used in messages and PETSc prefixes.
         quadrature_degree: degree of every dx/ds of the forms (the monolithic
             reference must use the same).
@@ -109,12 +116,15 @@ class NeoHookeanCellSolver(FieldSolver):
             previous state the remainder converges with the coupling.
 
     Rigid-body modes.  A cell loaded by tractions only floats: its tangent
-    stiffness has the rigid modes (two translations, one rotation) as null
-    space.  They are removed by three point constraints: u = 0 at the node A
-    that is lexicographically smallest in (x, y) and u_y = 0 at the node B
-    with the largest x.  These supports are statically determinate (exactly
-    one constraint per rigid mode, the rotation held by the lever arm
-    x_B - x_A > 0), so for a self-equilibrated load (zero resultant force
+    stiffness has the rigid modes (2D: two translations, one rotation; 3D:
+    three and three) as null space.  They are removed by point constraints:
+    u = 0 at the node A that is lexicographically smallest in (x, y, z) and
+    u_y = 0 at the node B with the largest x; in 3D also u_z = 0 at B and at
+    the node C farthest from the line AB in the (x, y) projection (3-2-1
+    supports).  These supports are statically determinate (exactly one
+    constraint per rigid mode: a rigid motion u = w x (X - A) that they
+    allow has w = 0 when x_B - x_A > 0 and (B - A) x (C - A) has a z
+    component), so for a self-equilibrated load (zero resultant force
     and moment, which a pressure ``-p N`` is exactly, also on curved P2
     facets) they carry no reaction and the strains and stresses are those of
     the free body; the displacement is the free body's up to the rigid motion
@@ -126,12 +136,12 @@ class NeoHookeanCellSolver(FieldSolver):
     (or the strains are so large that the dead load's moment about the
     deformed body is no longer balanced) and ``solve`` raises.
 
-    Interface data (arrays over ``interface_points(name)``, replicated, sorted):
-        input ``"displacement"`` (N, 2): u_hat on the interface, units of d.
-        output ``"force"`` (N, 2): nodal forces ON the cell at the interface
+    Interface data (arrays over ``interface_points(name)``, (N, gdim), replicated, sorted):
+        input ``"displacement"`` (N, gdim): u_hat on the interface, units of d.
+        output ``"force"`` (N, gdim): nodal forces ON the cell at the interface
             nodes, R_j = int P/s : grad phi_j dX (``forms.residual`` assembled
             with no boundary conditions and no boundary loads), units of
-            s * L0 (per unit depth), reference configuration.  At a solution
+            s * L0 (per unit depth in 2D), s * L0^2 in 3D, reference configuration.  At a solution
             R_j = int (P N / s) phi_j dS: the consistent nodal form of the
             traction that the surroundings (the gel) exert on the cell, N
             pointing out of the cell.  The gel receives -R_j.  Sum_j R_j is
@@ -162,6 +172,7 @@ class NeoHookeanCellSolver(FieldSolver):
         self._check_conditions(interfaces, robin_interfaces, symmetry, dirichlet, remove_rigid_modes)
         self.mesh, self.facet_tags = mesh, facet_tags
         self.comm: MPI.Comm = mesh.comm
+        self.gdim = int(mesh.geometry.dim)
         self.quadrature_degree = int(quadrature_degree)
         self.rigid_mode_rtol = float(rigid_mode_rtol)
         self._fdim = mesh.topology.dim - 1
@@ -264,13 +275,13 @@ class NeoHookeanCellSolver(FieldSolver):
             internal_robin = term if internal_robin is None else internal_robin + term
             nodes = InterfaceNodes(self.V, self.facet_tags, tags)
             owned_rows = nodes.owned
-            self._robin[iname] = {"target": target, "nodes": nodes, "loads": np.zeros((nodes.size, 2)),
+            self._robin[iname] = {"target": target, "nodes": nodes, "loads": np.zeros((nodes.size, self.gdim)),
                                   "dofs": nodes.dofs()[owned_rows], "rows": nodes.index[owned_rows]}
-            self._add_interface(iname, nodes, {"displacement": 2, "force": 2})
+            self._add_interface(iname, nodes, {"displacement": self.gdim, "force": self.gdim})
         return internal_robin
 
     def _dirichlet_interface_bcs(self, interfaces) -> list:
-        """Dirichlet interfaces: u_hat = g (both components) on each; declares the interfaces."""
+        """Dirichlet interfaces: u_hat = g (every component) on each; declares the interfaces."""
         bcs = []
         self._interface_bc_values: dict[str, fem.Function] = {}
         self._interface_bcs: dict[str, fem.DirichletBCMetaClass] = {}
@@ -282,7 +293,7 @@ class NeoHookeanCellSolver(FieldSolver):
             bcs.append(fem.dirichletbc(g, fem.locate_dofs_topological(self.V, self._fdim, facets)))
             self._interface_bc_values[iname] = g
             self._interface_bcs[iname] = bcs[-1]
-            self._add_interface(iname, InterfaceNodes(self.V, self.facet_tags, tags), {"displacement": 2})
+            self._add_interface(iname, InterfaceNodes(self.V, self.facet_tags, tags), {"displacement": self.gdim})
         return bcs
 
     def _symmetry_bcs(self, symmetry) -> list:
@@ -290,7 +301,7 @@ class NeoHookeanCellSolver(FieldSolver):
         bcs = []
         for k, entry in enumerate(symmetry):
             tags, comp = _unpack(entry, 2, f"symmetry[{k}]")
-            comp = _component(comp, f"symmetry[{k}]")
+            comp = _component(comp, f"symmetry[{k}]", self.gdim)
             facets = self._facets(tags, f"symmetry[{k}]")
             dofs = fem.locate_dofs_topological(self.V.sub(comp), self._fdim, facets)
             bcs.append(fem.dirichletbc(PETSc.ScalarType(0), dofs, self.V.sub(comp)))
@@ -305,7 +316,7 @@ class NeoHookeanCellSolver(FieldSolver):
                 raise ValueError(f"dirichlet[{k}] must be (tags, value) or (tags, value, component), "
                                  f"got {entry!r}")
             tags, value = as_tags(entry[0]), entry[1]
-            comp = _component(entry[2], f"dirichlet[{k}]") if len(entry) == 3 else None
+            comp = _component(entry[2], f"dirichlet[{k}]", self.gdim) if len(entry) == 3 else None
             facets = self._facets(tags, f"dirichlet[{k}]")
             if comp is None:
                 g = fem.Function(self.V)
@@ -332,44 +343,58 @@ class NeoHookeanCellSolver(FieldSolver):
         if isinstance(value, ufl.core.expr.Expr):
             if ufl.domain.extract_unique_domain(value) not in (None, self.mesh.ufl_domain()):
                 raise ValueError(f"{self.name}: {what}: the UFL traction lives on another mesh")
-            if value.ufl_shape != (2,):
-                raise ValueError(f"{self.name}: {what}: traction must be a 2-vector, "
+            if value.ufl_shape != (self.gdim,):
+                raise ValueError(f"{self.name}: {what}: traction must be a {self.gdim}-vector, "
                                  f"got shape {value.ufl_shape}")
             return value
         return set_function(fem.Function(self.V), value, f"{self.name}: {what}")
 
     def _point_constraints(self):
-        """Pins: u = 0 at the smallest node A (in x, then y), u_y = 0 at the node B of largest x."""
-        n_owned = self.V.dofmap.index_map.size_local
-        X = self.V.tabulate_dof_coordinates()[:n_owned, :2]
-        cand = []
-        if n_owned:
-            a = np.lexsort((X[:, 1], X[:, 0]))[0]
-            b = np.lexsort((-X[:, 1], -X[:, 0]))[0]
-            cand = [X[a], X[b]]
+        """Pins: u = 0 at the smallest node A (in x, then y, then z), u_y (3D: and u_z) = 0 at the
+        node B of largest x; in 3D u_z = 0 at the node C farthest from AB in the (x, y) projection."""
+        X = self.V.tabulate_dof_coordinates()[:self.V.dofmap.index_map.size_local, :self.gdim]
+        cand = [X[np.lexsort(X.T[::-1])[0]], X[np.lexsort(-X.T[::-1])[0]]] if X.shape[0] else []
         cand = [p for c in self.comm.allgather(cand) for p in c]
-        XA = min(cand, key=lambda p: (p[0], p[1]))
-        XB = min(cand, key=lambda p: (-p[0], -p[1]))
-        size = max(np.ptp([p[0] for p in cand]), np.ptp([p[1] for p in cand]))
+        XA = min(cand, key=lambda p: tuple(p))
+        XB = min(cand, key=lambda p: tuple(-p))
+        size = max(np.ptp([p[i] for p in cand]) for i in range(self.gdim))
         if XB[0] - XA[0] <= 1e-8 * size:
             raise ValueError(f"{self.name}: the mesh has no extent in x; cannot pin the rotation")
+        held = [(XB, c) for c in range(1, self.gdim)]
+        if self.gdim == 3:
+            held.append((self._third_pin(X, XA, XB, size), 2))
         tol = 1e-10 * (1 + size)
 
         def at(P):
-            return lambda x: (np.abs(x[0] - P[0]) < tol) & (np.abs(x[1] - P[1]) < tol)
+            return lambda x: np.all(np.abs(x[:self.gdim] - P[:, None]) < tol, axis=0)
         dofs_a = fem.locate_dofs_geometrical(self.V, at(XA))
-        V1, _ = self.V.sub(1).collapse()
-        dofs_b = fem.locate_dofs_geometrical((self.V.sub(1), V1), at(XB))[0]
-        bcs = [fem.dirichletbc(np.zeros(2, dtype=PETSc.ScalarType), dofs_a, self.V),
-               fem.dirichletbc(PETSc.ScalarType(0), dofs_b, self.V.sub(1))]
+        bcs = [fem.dirichletbc(np.zeros(self.gdim, dtype=PETSc.ScalarType), dofs_a, self.V)]
         bs = self.V.dofmap.index_map_bs
-        owned = n_owned * bs
-        # unrolled dofs: A's x and y, B's y; owned copies only (for the reaction sums)
-        pins = {"A": np.asarray(XA), "B": np.asarray(XB),
-                "ax": [d * bs for d in dofs_a if d * bs < owned],
-                "ay": [d * bs + 1 for d in dofs_a if d * bs + 1 < owned],
-                "by": [int(d) for d in dofs_b if d < owned]}
+        owned = self.V.dofmap.index_map.size_local * bs
+        # unrolled dofs, owned copies only (for the reaction sums): A's components, then each held one
+        pins = {"A": np.asarray(XA), "held": [(np.asarray(P), c) for P, c in held],
+                "a": [[d * bs + c for d in dofs_a if d * bs + c < owned] for c in range(self.gdim)], "h": []}
+        for P, c in held:
+            Vc, _ = self.V.sub(c).collapse()
+            dofs = fem.locate_dofs_geometrical((self.V.sub(c), Vc), at(P))[0]
+            bcs.append(fem.dirichletbc(PETSc.ScalarType(0), dofs, self.V.sub(c)))
+            pins["h"].append([int(d) for d in dofs if d < owned])
         return bcs, pins
+
+    def _third_pin(self, X, XA, XB, size):
+        """The node C with the largest |(B - A) x (C - A)|_z (ties: the smallest in x, y, z)."""
+        b = XB - XA
+        score = np.abs(b[0] * (X[:, 1] - XA[1]) - b[1] * (X[:, 0] - XA[0]))
+        # rounded: coordinate noise of a node shared by two ranks must not decide the choice
+        key = np.round(score / (1e-9 * size**2))
+        best = [(float(key[k]), tuple(-np.round(X[k] / (1e-9 * size))), X[k])
+                for k in np.flatnonzero(key == key.max())] if X.shape[0] else []
+        best = [e for c in self.comm.allgather(best) for e in c]
+        k, _, XC = max(best, key=lambda e: e[:2])
+        if k * 1e-9 <= 1e-6:
+            raise ValueError(f"{self.name}: the mesh is flat in the (x, y) projection; cannot pin the "
+                             f"rotation about the x axis")
+        return XC
 
     # -- FieldSolver interface ------------------------------------------------
     def _set_input(self, interface: str, key: str, values: np.ndarray) -> None:
@@ -395,8 +420,23 @@ class NeoHookeanCellSolver(FieldSolver):
         if self._pins is not None:
             self._check_rigid_modes()
 
+    def _canonical_order(self) -> CanonicalOrder:
+        if not hasattr(self, "_canonical"):
+            self._canonical = CanonicalOrder(self.u.function_space)
+        return self._canonical
+
+    def checkpoint_state(self) -> dict:
+        """The displacement in the partition-independent order (``femtools.canonical``), and whether it is
+        still the last solve's solution (the next solve's linear path starts there)."""
+        return {"u": self._canonical_order().gather(self.u.x.array), "newton": self._newton.checkpoint_state()}
+
+    def load_checkpoint_state(self, state: typing.Mapping) -> None:
+        """Restore a state written by :meth:`checkpoint_state` (any partition)."""
+        self.u.x.array[:] = self._canonical_order().scatter(state["u"])
+        self._newton.load_checkpoint_state(state.get("newton", {}))
+
     def interface_data(self, name: str) -> dict[str, np.ndarray]:
-        """``{"force": (N, 2), "displacement": (N, 2)}``: nodal forces on the cell (units s * L0, see the
+        """``{"force": (N, gdim), "displacement": (N, gdim)}``: nodal forces on the cell (units s * L0, see the
         class docstring) and the nodal displacement there (units of d)."""
         nodes = self.interface_nodes(name)
         return {"force": nodes.from_array(self._newton.state_residual().array),
@@ -405,10 +445,10 @@ class NeoHookeanCellSolver(FieldSolver):
     def interface_stiffness(self, name: str) -> np.ndarray:
         """The cell's Steklov-Poincare operator on Dirichlet interface ``name``, linearised at rest.
 
-        K (2N, 2N), rows and columns ``2 i + c`` (node i of ``interface_points(name)``,
+        K (gdim N, gdim N), rows and columns ``gdim i + c`` (node i of ``interface_points(name)``,
         component c): the nodal forces on the cell (``interface_data(name)["force"]``)
         that hold a nodal displacement u of the interface, the rest of the cell free
-        (its other conditions kept), F = K u, units of s L0 per unit of d.  The Schur
+        (its other conditions kept), F = K u, units of s L0 (3D: s L0^2) per unit of d.  The Schur
         complement K_GG - K_GI K_II^-1 K_IG of the Jacobian at rest onto the
         interface dofs; symmetric, positive semi-definite.  Rows and columns of dofs
         another condition fixes (a symmetry line through the interface) are zero.
@@ -438,7 +478,7 @@ class NeoHookeanCellSolver(FieldSolver):
         """d(outputs)/d(inputs) on the Dirichlet interfaces, linearised at rest.
 
         ``{((name, "force"), (name, "displacement")): K, ((name, "displacement"),
-        (name, "displacement")): D}`` per interface, rows and columns ``2 i + c``
+        (name, "displacement")): D}`` per interface, rows and columns ``gdim i + c``
         as in :meth:`interface_stiffness` (K); D is the identity but on the
         components another condition fixes (there the displacement stays 0).
         K's rows of those components are zero: the force there is that
@@ -478,22 +518,27 @@ class NeoHookeanCellSolver(FieldSolver):
         if f is not None:
             r -= f.array
         p = self._pins
-        loc = np.array([r[p["ax"]].sum(), r[p["ay"]].sum(), r[p["by"]].sum(),
-                        np.abs(f.array).sum() if f is not None else 0.0])
+        loc = np.array([r[d].sum() for d in p["a"]] + [r[d].sum() for d in p["h"]]
+                       + [np.abs(f.array).sum() if f is not None else 0.0])
         if f is not None:
             f.destroy()
-        ax, ay, by, load = self.comm.allreduce(loc, op=MPI.SUM)
-        arm = p["B"][0] - p["A"][0]
-        self.rigid_mode_reaction = {"force": np.array([ax, ay + by]), "moment": arm * by,
-                                    "relative": float(np.hypot(np.hypot(ax, ay + by), by) / load)
-                                    if load > 0 else 0.0}
+        total = self.comm.allreduce(loc, op=MPI.SUM)
+        force, held, load = total[:self.gdim].copy(), total[self.gdim:-1], total[-1]
+        moment = 0.0 if self.gdim == 2 else np.zeros(3)
+        for (P, c), value in zip(p["held"], held):
+            force[c] += value
+            moment = moment + np.cross(P - p["A"], value * np.eye(self.gdim)[c])
+        # the pins that hold rotations carry nothing iff the moment vanishes (statically determinate)
+        relative = np.hypot(functools.reduce(np.hypot, force), functools.reduce(np.hypot, held))
+        self.rigid_mode_reaction = {"force": force, "moment": moment,
+                                    "relative": float(relative / load) if load > 0 else 0.0}
         if self.rigid_mode_reaction["relative"] > self.rigid_mode_rtol:
             raise RuntimeError(
                 f"{self.name}: the point constraints that remove the rigid modes carry "
                 f"{self.rigid_mode_reaction['relative']:.2e} of the applied load (tolerance "
                 f"{self.rigid_mode_rtol:.1e}): the traction load is not self-equilibrated "
-                f"(resultant force {-self.rigid_mode_reaction['force']}, moment about A "
-                f"{-self.rigid_mode_reaction['moment']:.3e}, units of s L0)")
+                f"(resultant force {-force}, moment about A {-np.asarray(moment)}, units of s L0"
+                f"{'^2' if self.gdim == 3 else ''})")
 
     # -- accessors ---------------------------------------------------------------
     @property
@@ -524,20 +569,27 @@ class NeoHookeanCellSolver(FieldSolver):
         return list(self._newton.history)
 
     def cauchy_stress_expression(self):
-        """UFL Cauchy stress sigma_c in units of mu_s (= s sigma_hat), in-plane 2x2 block."""
+        """UFL Cauchy stress sigma_c in units of mu_s (= s sigma_hat); 2D: the in-plane 2x2 block."""
         return self._s * forms.cauchy_stress(self.u, self._mu, self._lmbda, self._d, self._s)
 
     def green_lagrange_expression(self):
-        """UFL Green-Lagrange strain E = (F^T F - I)/2 (dimensionless), in-plane 2x2 block."""
+        """UFL Green-Lagrange strain E = (F^T F - I)/2 (dimensionless); 2D: the in-plane 2x2 block."""
         return forms.green_lagrange(self.u, self._d)
 
     def von_mises_expressions(self):
-        """UFL ``(stress, strain)`` von Mises measures, both by the 2D formula of model.md:
+        """UFL ``(stress, strain)`` von Mises measures of sigma_c (units of mu_s) and of the
+        Green-Lagrange strain E (``femtools.functions.von_mises``).
 
-            sigma_v = sqrt(sxx^2 + syy^2 - sxx syy + 3 sxy^2)   (sigma_c, units of mu_s)
-            e_v     = sqrt(Exx^2 + Eyy^2 - Exx Eyy + 3 Exy^2)   (Green-Lagrange E)
+        2D, the paper's formula (model.md section 2); the out-of-plane components
+        (sigma_zz, E_zz = 0) are not included:
 
-        The out-of-plane components (sigma_zz, E_zz = 0) are not included.
+            sigma_v = sqrt(sxx^2 + syy^2 - sxx syy + 3 sxy^2)
+
+        3D, the full formula (model.md section 10):
+
+            sigma_v = sqrt(((sxx - syy)^2 + (syy - szz)^2 + (szz - sxx)^2)/2 + 3 (sxy^2 + syz^2 + szx^2))
+
+        and the same of E for the strain.
         """
         return von_mises(self.cauchy_stress_expression()), von_mises(self.green_lagrange_expression())
 
@@ -569,14 +621,14 @@ class NeoHookeanCellSolver(FieldSolver):
     def von_mises_range(self) -> dict[str, tuple[float, float]]:
         """``{"stress": (min, max), "strain": (min, max)}`` over the cell.
 
-        Evaluated cell by cell (each cell's own one-sided values) at the six
+        Evaluated cell by cell (each cell's own one-sided values) at the
         P2 nodes (vertices and edge midpoints) and at the quadrature points
         of degree ``quadrature_degree``, on owned cells only, then reduced
         over the ranks: the set of points does not depend on the partition.
         Stress in units of mu_s, strain dimensionless.
         """
         if "vm" not in self._compiled:
-            cell = basix.CellType.triangle
+            cell = basix.CellType.triangle if self.mesh.topology.dim == 2 else basix.CellType.tetrahedron
             lattice = basix.create_lattice(cell, 2, basix.LatticeType.equispaced, True)
             quad, _ = basix.make_quadrature(cell, self.quadrature_degree)
             self._compiled["vm"] = fem.Expression(ufl.as_vector(self.von_mises_expressions()),
@@ -594,24 +646,26 @@ class NeoHookeanCellSolver(FieldSolver):
         return {"stress": (float(lo[0]), float(hi[0])), "strain": (float(lo[1]), float(hi[1]))}
 
     def centroid_displacement(self) -> np.ndarray:
-        """Area-weighted mean of u_c over the reference cell, (2,), units of L0 (= d * mean u_hat)."""
+        """Area- (3D: volume-) weighted mean of u_c over the reference cell, (gdim,), units of L0
+        (= d * mean u_hat)."""
         if "centroid" not in self._compiled:
             one = fem.Constant(self.mesh, PETSc.ScalarType(1.0))
-            self._compiled["centroid"] = [fem.form(self.u[i] * self.dx) for i in range(2)] + \
+            self._compiled["centroid"] = [fem.form(self.u[i] * self.dx) for i in range(self.gdim)] + \
                 [fem.form(one * self.dx)]
         vals = np.array([fem.assemble_scalar(f) for f in self._compiled["centroid"]])
         vals = self.comm.allreduce(vals, op=MPI.SUM) if self.comm.size > 1 else vals
-        return self.displacement_scale * vals[:2] / vals[2]
+        return self.displacement_scale * vals[:-1] / vals[-1]
 
     def max_displacement(self) -> float:
         """max |u_c| over the P2 nodes, units of L0."""
         n = self.V.dofmap.index_map.size_local
-        local = np.linalg.norm(self.u.x.array.reshape(-1, 2)[:n], axis=1)
+        local = np.linalg.norm(self.u.x.array.reshape(-1, self.gdim)[:n], axis=1)
         m = self.comm.allreduce(float(local.max(initial=0.0)), op=MPI.MAX)
         return self.displacement_scale * m
 
     def boundary_force(self, tags: Tags) -> np.ndarray:
-        """Net force on the cell through the facets ``tags``: sum of the nodal forces, (2,), units s L0.
+        """Net force on the cell through the facets ``tags``: sum of the nodal forces, (gdim,), units s L0
+        (3D: s L0^2).
 
         The nodal forces are those of the ``"force"`` output (internal
         forces, no loads, no boundary conditions) at every node of those
@@ -621,7 +675,7 @@ class NeoHookeanCellSolver(FieldSolver):
         facets = self._facets(tags, "boundary_force")
         blocks = fem.locate_dofs_topological(self.V, self._fdim, facets)
         blocks = blocks[blocks < self.V.dofmap.index_map.size_local]
-        local = self._newton.state_residual().array.reshape(-1, 2)[blocks].sum(axis=0)
+        local = self._newton.state_residual().array.reshape(-1, self.gdim)[blocks].sum(axis=0)
         return self.comm.allreduce(local, op=MPI.SUM) if self.comm.size > 1 else local
 
 
@@ -631,9 +685,10 @@ def _unpack(entry, n: int, what: str):
     return as_tags(entry[0]), entry[1]
 
 
-def _component(comp, what: str) -> int:
-    if comp not in (0, 1):
-        raise ValueError(f"{what}: component must be 0 (x) or 1 (y), got {comp!r}")
+def _component(comp, what: str, gdim: int) -> int:
+    if comp not in range(gdim):
+        names = "0 (x) or 1 (y)" if gdim == 2 else "0 (x), 1 (y) or 2 (z)"
+        raise ValueError(f"{what}: component must be {names}, got {comp!r}")
     return int(comp)
 
 

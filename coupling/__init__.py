@@ -26,42 +26,47 @@ from coupling.acceleration import (IQNILS, IQNIMVJ, Acceleration, AccelerationIn
                                    Preconditioner, build_acceleration, qr_filter,
                                    relaxation_prior_diagonal)
 from coupling.config import (ACCELERATION_OPTIONS, ACCELERATIONS, FILTERS, JACOBIAN_PRIORS, MEASURES,
-                             ON_MAX_ITERATIONS, PRECONDITIONERS, SCHEMES, STATE_RELOADS,
+                             ACCEPTED_VALUES, ON_MAX_ITERATIONS, PRECONDITIONERS, SCHEMES, STATE_RELOADS,
                              AccelerationConfig, ConvergenceMeasureConfig, CouplingConfig,
                              FilterConfig, PreconditionerConfig, load_config)
-from coupling.convergence import (AbsoluteConvergence, ConvergenceMeasure, MeasureValue,
-                                  RelativeConvergence, ResidualRelativeConvergence, build_measure)
+from coupling.convergence import (MEASURE_ALIASES, MEASURE_FORMULAS, AbsoluteConvergence, ConvergenceMeasure,
+                                  MeasureValue,
+                                  RelativeConvergence, ResidualRelativeConvergence, build_measure,
+                                  measure_type)
 from coupling.errors import CouplingDivergedError, CouplingError, CouplingNotConvergedError
 from coupling.extrapolation import lagrange_weights
 from coupling.layout import VectorLayout
 from coupling.linearization import LinearizedPrior, coupled_jacobian
 from coupling.mapping import Mapping, build_mapping, order_along_curve, polyline_interpolation_matrix
 from coupling.parallel import SerialComm, default_comm, gather_rows, scatter_rows
-from coupling.participant import CURVE_ORDERS, CURVES, MAPPINGS, Data, Participant
+from coupling.participant import CURVE_ORDERS, CURVES, MAPPINGS, Data, Participant, uses_advance
 from coupling.records import (CouplingResult, IterationRecord, RecordedSolve, Recording,
                               WindowRecord, format_progress, write_records)
 from coupling.replay import ReplayResult, replay
 from coupling.schemes import (CouplingScheme, ParallelExplicitScheme, ParallelImplicitScheme,
                               SerialExplicitScheme, SerialImplicitScheme, build_scheme)
 from coupling.serialization import load_npz, save_npz, to_jsonable, write_bytes
+from coupling.surface_mapping import SURFACE_MAPPINGS, surface_interpolation_matrix, surface_mapping_matrix
 
 __all__ = [
     # participants, data and schemes
-    "Participant", "Data", "MAPPINGS", "CURVES", "CURVE_ORDERS",
+    "Participant", "uses_advance", "Data", "MAPPINGS", "CURVES", "CURVE_ORDERS",
     "build_scheme", "CouplingScheme", "SerialImplicitScheme", "ParallelImplicitScheme",
     "SerialExplicitScheme", "ParallelExplicitScheme",
     # configuration
     "load_config", "CouplingConfig", "AccelerationConfig", "ConvergenceMeasureConfig", "FilterConfig",
-    "PreconditionerConfig", "SCHEMES", "STATE_RELOADS", "ACCELERATIONS", "FILTERS", "PRECONDITIONERS",
-    "MEASURES", "ON_MAX_ITERATIONS", "JACOBIAN_PRIORS", "ACCELERATION_OPTIONS",
+    "PreconditionerConfig", "SCHEMES", "STATE_RELOADS", "ACCEPTED_VALUES", "ACCELERATIONS", "FILTERS",
+    "PRECONDITIONERS", "MEASURES", "ON_MAX_ITERATIONS", "JACOBIAN_PRIORS", "ACCELERATION_OPTIONS",
     # acceleration, convergence, extrapolation
     "Acceleration", "AccelerationInfo", "NoAcceleration", "ConstantRelaxation", "AitkenRelaxation",
     "IQNILS", "IQNIMVJ", "Preconditioner", "build_acceleration", "qr_filter", "relaxation_prior_diagonal",
     "LinearizedPrior", "coupled_jacobian", "VectorLayout",
     "ConvergenceMeasure", "AbsoluteConvergence", "RelativeConvergence", "ResidualRelativeConvergence",
-    "MeasureValue", "build_measure", "lagrange_weights",
+    "MeasureValue", "build_measure", "measure_type", "MEASURE_ALIASES", "MEASURE_FORMULAS",
+    "lagrange_weights",
     # mapping and MPI
     "Mapping", "build_mapping", "order_along_curve", "polyline_interpolation_matrix",
+    "SURFACE_MAPPINGS", "surface_interpolation_matrix", "surface_mapping_matrix",
     "SerialComm", "default_comm", "gather_rows", "scatter_rows",
     # errors, records, replay, files
     "CouplingError", "CouplingDivergedError", "CouplingNotConvergedError",

@@ -44,8 +44,10 @@ import tomllib
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
+from coupling.convergence import MEASURE_FORMULAS, measure_type
+
 __all__ = [
-    "SCHEMES", "STATE_RELOADS", "ACCELERATIONS", "FILTERS", "PRECONDITIONERS", "MEASURES",
+    "SCHEMES", "STATE_RELOADS", "ACCEPTED_VALUES", "ACCELERATIONS", "FILTERS", "PRECONDITIONERS", "MEASURES",
     "ON_MAX_ITERATIONS", "JACOBIAN_PRIORS", "ACCELERATION_OPTIONS", "ConvergenceMeasureConfig",
     "FilterConfig", "PreconditionerConfig", "AccelerationConfig", "CouplingConfig", "load_config",
 ]
@@ -53,10 +55,12 @@ __all__ = [
 SCHEMES = ("serial-implicit", "parallel-implicit", "serial-explicit", "parallel-explicit")
 #: when an implicit scheme restores the participant states within a time window
 STATE_RELOADS = ("iteration", "window")
+#: which values an accepted time window keeps for its accelerated data
+ACCEPTED_VALUES = ("output", "input")
 ACCELERATIONS = ("none", "constant", "aitken", "iqn-ils", "iqn-imvj")
 FILTERS = ("none", "qr1", "qr2")
 PRECONDITIONERS = ("none", "constant", "value", "residual", "residual-sum")
-MEASURES = ("absolute", "relative", "residual-relative")
+MEASURES = tuple(MEASURE_FORMULAS)
 ON_MAX_ITERATIONS = ("raise", "return", "continue")
 JACOBIAN_PRIORS = ("none", "linearized")
 
@@ -123,18 +127,34 @@ def _string(where: str, key: str, value: Any) -> str:
 
 
 def _check_keys(where: str, table: Mapping[str, Any], allowed: tuple[str, ...],
-                required: tuple[str, ...] = ()) -> None:
+                required: tuple[str, ...] = (), meanings: Mapping[str, str] | None = None) -> None:
+    """Refuse unknown keys: with the key of the same meaning (``meanings``), else a look-alike key."""
     if not isinstance(table, Mapping):
         raise ValueError(f"{where} must be a table (dict), got {type(table).__name__}")
     for key in table:
         if key not in allowed:
             close = difflib.get_close_matches(str(key), allowed, n=1)
             hint = f" (did you mean {close[0]!r}?)" if close else ""
+            if meanings and key in meanings:
+                hint = f" ({meanings[key]})"
             raise ValueError(f"{where}: unknown key {key!r}{hint}; allowed keys: "
                              f"{', '.join(allowed)}")
     for key in required:
         if key not in table:
             raise ValueError(f"{where}: missing required key {key!r}")
+
+
+#: keys of another framework's convergence criteria, by what they mean here
+_CONVERGENCE_KEY_MEANINGS = {
+    "tolerance": "CoCoNuT's tolerance is the limit here: 'limit'",
+    "order": "CoCoNuT's order of the norm: the norms here are Euclidean (order 2)",
+    "mesh": "preCICE's mesh of the data: here a data is named by 'data' alone",
+    "abs-limit": "preCICE's absolute-or-relative limits: give an 'absolute' and a 'relative' measure, "
+                 "each with suffices = true",
+    "rel-limit": "preCICE's absolute-or-relative limits: give an 'absolute' and a 'relative' measure, "
+                 "each with suffices = true",
+    "strict": "preCICE's strict: here max_iterations with on_max_iterations = 'raise'",
+}
 
 
 def _field_names(cls: type) -> tuple[str, ...]:
@@ -155,6 +175,12 @@ class ConvergenceMeasureConfig:
     * ``"residual-relative"``: ``‖r‖ / ‖r_1‖ < limit`` with ``r_1`` the residual
       of the first iteration of the time window.
 
+    preCICE's names of the same measures (``"absolute-convergence-measure"``,
+    ``"relative-convergence-measure"``, ``"residual-relative-convergence-measure"``)
+    are accepted and stored as the short name; another framework's name is
+    refused with the measure of its meaning (CoCoNuT's ``relative_norm`` is
+    ``"residual-relative"``).
+
     Attributes:
         type: One of :data:`MEASURES`.
         limit: Threshold, > 0.
@@ -169,7 +195,7 @@ class ConvergenceMeasureConfig:
 
     def __post_init__(self) -> None:
         where = f"coupling.convergence[data={self.data!r}]"
-        _choice(where, "type", self.type, MEASURES)
+        object.__setattr__(self, "type", measure_type(self.type, where))
         object.__setattr__(self, "limit", _real(where, "limit", self.limit, positive=True))
         _string(where, "data", self.data)
         _boolean(where, "suffices", self.suffices)
@@ -367,6 +393,18 @@ class CouplingConfig:
             ``"window"`` needs participants whose ``advance(t, dt)`` is
             idempotent within a window and whose state only seeds the next
             solve (e.g. a Newton initial guess, the time history kept apart).
+            With ``"window"``, ``save_state``/``load_state`` are not called
+            within a window at all.
+        accepted_value: The value of the accelerated data that an accepted
+            window keeps (the next window's start, what :meth:`latest`
+            returns and ``end_window`` receives): ``"output"`` = ``x̃``, what
+            the participants wrote in the last iteration (preCICE's choice);
+            ``"input"`` = ``x``, what they read in it, the values their states
+            were computed from.  The two differ by the last residual: less
+            than the convergence limit in a converged window, up to the whole
+            residual in a window accepted unconverged (``on_max_iterations =
+            "continue"``).  Forward data (serial schemes) are the last written
+            values either way.
     """
 
     scheme: str = "serial-implicit"
@@ -382,10 +420,12 @@ class CouplingConfig:
     check_replicated: bool = False
     extrapolation_order: int = 0
     state_reload: str = "iteration"
+    accepted_value: str = "output"
 
     def __post_init__(self) -> None:
         where = "coupling"
         _choice(where, "state_reload", self.state_reload, STATE_RELOADS)
+        _choice(where, "accepted_value", self.accepted_value, ACCEPTED_VALUES)
         _integer(where, "extrapolation_order", self.extrapolation_order, minimum=0)
         if self.extrapolation_order > 2:
             raise ValueError(f"{where}.extrapolation_order = {self.extrapolation_order} must be 0, 1 or 2")
@@ -452,7 +492,7 @@ class CouplingConfig:
             for i, entry in enumerate(entries):
                 sub = f"{where}.convergence[{i}]"
                 _check_keys(sub, entry, _field_names(ConvergenceMeasureConfig),
-                            required=("type", "limit"))
+                            required=("type", "limit"), meanings=_CONVERGENCE_KEY_MEANINGS)
                 parsed.append(ConvergenceMeasureConfig(**entry))
             kwargs["convergence"] = tuple(parsed)
         if "acceleration" in kwargs:

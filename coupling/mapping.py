@@ -17,6 +17,8 @@ applied to each component: ``values_reader = M @ values_writer``.
   *reader's* polyline to the writer's points.  Since the rows of ``L`` sum to
   one, ``Σ_reader M f = Σ_writer f``: the total (e.g. of nodal forces) is
   preserved exactly.
+* ``"surface"``, ``"surface-conservative"``: their analogues between
+  triangulated surfaces in 3-D, see :mod:`coupling.surface_mapping`.
 """
 
 from __future__ import annotations
@@ -26,6 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
+
+from coupling.surface_mapping import SURFACE_MAPPINGS, surface_mapping_matrix
 
 __all__ = ["Mapping", "build_mapping", "order_along_curve", "polyline_interpolation_matrix"]
 
@@ -39,7 +43,7 @@ class Mapping:
 
     Attributes:
         kind: The mapping kind (``"matching"``, ``"nearest"``, ``"linear"``,
-            ``"conservative"``).
+            ``"conservative"``, ``"surface"``, ``"surface-conservative"``).
         matrix: Sparse CSR matrix of shape ``(N_reader, N_writer)``.
         data_name: Name of the mapped data (for messages).
         reader: Name of the reading participant (for messages).
@@ -292,11 +296,12 @@ def _nearest_projection(a: np.ndarray, b: np.ndarray, queries: np.ndarray) -> tu
 
 def build_mapping(kind: str, writer_points: np.ndarray, reader_points: np.ndarray, *,
                   data_name: str = "", reader: str = "", curve: str = "auto",
-                  curve_order: str = "chain") -> Mapping:
+                  curve_order: str = "chain", triangles: np.ndarray | None = None) -> Mapping:
     """Build the mapping of a data from its writer's points to a reader's points.
 
     Args:
-        kind: ``"matching"``, ``"nearest"``, ``"linear"`` or ``"conservative"``.
+        kind: ``"matching"``, ``"nearest"``, ``"linear"``, ``"conservative"``,
+            ``"surface"`` or ``"surface-conservative"``.
         writer_points: ``(N_writer, space_dim)`` points of the writer.
         reader_points: ``(N_reader, space_dim)`` points of the reader.
         data_name: Name of the data (for messages).
@@ -304,13 +309,17 @@ def build_mapping(kind: str, writer_points: np.ndarray, reader_points: np.ndarra
         curve: Curve type for ``"linear"``/``"conservative"``, see
             :func:`order_along_curve`.
         curve_order: Ordering strategy, see :func:`order_along_curve`.
+        triangles: For ``"surface"`` the writer's triangles, for
+            ``"surface-conservative"`` the reader's, see
+            :func:`coupling.surface_mapping.surface_mapping_matrix`.
 
     Returns:
         The :class:`Mapping`.
 
     Raises:
-        ValueError: If a ``"matching"`` reader point has no exact partner, the
-            space dimensions differ, or ``kind`` is unknown.
+        ValueError: If a ``"matching"`` reader point has no exact partner, a
+            surface mapping's point is far from the surface, the space
+            dimensions differ, or ``kind`` is unknown.
     """
     what = f"data {data_name!r} (reader {reader!r})"
     wp = as_points(writer_points, f"{what}: writer")
@@ -333,9 +342,12 @@ def build_mapping(kind: str, writer_points: np.ndarray, reader_points: np.ndarra
         perm, closed = order_along_curve(rp, curve, curve_order, what=f"{what}: reader curve")
         local = polyline_interpolation_matrix(rp[perm], closed, wp).tocoo()  # (nw, nr) consistent
         matrix = sp.csr_matrix((local.data, (perm[local.col], local.row)), shape=(nr, nw))
+    elif kind in SURFACE_MAPPINGS:
+        matrix = surface_mapping_matrix(kind, wp, rp, triangles, what)
     else:
         raise ValueError(f"{what}: mapping = {kind!r} is not allowed; allowed values: "
-                         f"'matching', 'nearest', 'linear', 'conservative'")
+                         f"'matching', 'nearest', 'linear', 'conservative', 'surface', "
+                         f"'surface-conservative'")
     return Mapping(kind=kind, matrix=matrix, data_name=data_name, reader=reader)
 
 

@@ -7,12 +7,17 @@ assembles the replicated array with :func:`gather_rows` (each rank passes the
 rows it owns together with their global row numbers) and extracts its own rows
 from a replicated array with :func:`scatter_rows`.
 
-mpi4py is optional.  Without it (or with ``comm=None`` and no MPI), the
-:class:`SerialComm` stand-in is used and everything runs serially.
+mpi4py is optional, and neither ``import coupling`` nor a serial
+``build_scheme`` imports it (importing it initialises MPI): without a
+``comm``, a scheme runs on ``MPI.COMM_WORLD`` only if the application has
+imported mpi4py already or an MPI launcher started more than one process
+(:func:`default_comm`), else on the :class:`SerialComm` stand-in.
 """
 
 from __future__ import annotations
 
+import os
+import sys
 from typing import Any
 
 import numpy as np
@@ -63,8 +68,26 @@ class SerialComm:
         """Do nothing."""
 
 
+#: the world size an MPI launcher gives each process (Open MPI, MPICH/Intel MPI's PMI, MVAPICH)
+_LAUNCHER_SIZES = ("OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "MV2_COMM_WORLD_SIZE")
+
+
+def _launched_in_parallel() -> bool:
+    """Whether an MPI launcher started this process as one of several."""
+    for key in _LAUNCHER_SIZES:
+        try:
+            if int(os.environ.get(key, "1")) > 1:
+                return True
+        except ValueError:
+            continue
+    return False
+
+
 def default_comm() -> Any:
-    """Return ``MPI.COMM_WORLD`` if mpi4py is importable, else a :class:`SerialComm`."""
+    """``MPI.COMM_WORLD`` if mpi4py is imported already or the process is one of several MPI ranks, else a
+    :class:`SerialComm` (so that a serial run neither imports nor initialises MPI)."""
+    if "mpi4py.MPI" not in sys.modules and not _launched_in_parallel():
+        return SerialComm()
     try:
         from mpi4py import MPI
     except ImportError:

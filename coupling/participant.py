@@ -23,9 +23,9 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Data", "Participant", "MAPPINGS", "CURVES", "CURVE_ORDERS"]
+__all__ = ["Data", "Participant", "uses_advance", "MAPPINGS", "CURVES", "CURVE_ORDERS"]
 
-MAPPINGS = ("matching", "nearest", "linear", "conservative")
+MAPPINGS = ("matching", "nearest", "linear", "conservative", "surface", "surface-conservative")
 CURVES = ("auto", "open", "closed")
 CURVE_ORDERS = ("chain", "angle", "given")
 
@@ -43,7 +43,11 @@ class Data:
         mapping: ``"matching"`` (exact point-to-point lookup), ``"nearest"``,
             ``"linear"`` (interpolation along the interface curve) or
             ``"conservative"`` (transpose of the linear map from the reader's
-            to the writer's points; preserves the sum, for nodal forces).
+            to the writer's points; preserves the sum, for nodal forces);
+            ``"surface"`` and ``"surface-conservative"`` are their analogues
+            on triangulated surfaces in 3-D (:mod:`coupling.surface_mapping`;
+            they need :meth:`Participant.interface_triangles` of the writer,
+            resp. of the reader).
         curve: For ``"linear"``/``"conservative"``: ``"open"``, ``"closed"``
             or ``"auto"`` (closed if the chain's end is as close to its start
             as its end segments are long).
@@ -98,17 +102,30 @@ class Participant(abc.ABC):
     """Abstract base class of a coupling participant.
 
     Subclasses set a unique ``name`` and implement :meth:`interface_points`
-    and :meth:`solve`.  Time-dependent implicit coupling also needs
-    :meth:`save_state`, :meth:`load_state` and :meth:`advance`, called in
-    every time window ``[t, t + dt]`` as::
+    and :meth:`solve`; every other method has a default that does nothing
+    (or raises ``NotImplementedError`` where the scheme needs an answer).
+    The calls a scheme makes (``docs/coupling.md``, "The participant's
+    lifecycle")::
 
-        state = p.save_state()            # state at t (must be a copy)
-        for k in 1, 2, ...:               # coupling iterations
-            if k > 1:
-                p.load_state(state)       # back to the state at t
-            p.advance(t, dt)              # set the time level (idempotent)
-            outputs = p.solve(inputs_k)
-        # after convergence p keeps the state reached by its last solve (t + dt)
+        p.initialize()                        # once, before the first window
+        for each window [t, t + dt]:          # a steady solve: one window, no begin_window
+            p.begin_window(t, dt)             # once: set the time level, shift the history
+            state = p.save_state()            # implicit, state_reload = "iteration" only
+            for k in 1, 2, ...:               # coupling iterations
+                if k > 1:
+                    p.load_state(state)       # implicit, state_reload = "iteration" only
+                outputs = p.solve(inputs_k)
+            p.end_window(accepted)            # once, when the window is accepted
+        p.finalize()                          # once, when solve() or run() returns
+
+    With ``state_reload = "window"`` neither ``save_state`` nor ``load_state``
+    is called within a window: each solve continues from the previous one.
+    Explicit schemes solve once per window and never save or load.
+
+    A participant whose class overrides :meth:`advance` but not
+    :meth:`begin_window` keeps the earlier protocol: ``save_state()`` before
+    the window's first solve, and ``advance(t, dt)`` (idempotent: it *sets*
+    the time level) after every ``load_state`` and before every solve.
 
     Example::
 
@@ -129,6 +146,17 @@ class Participant(abc.ABC):
         The array must be replicated (identical) on every MPI rank; use
         :func:`coupling.parallel.gather_rows` if the points are distributed.
         """
+
+    def interface_triangles(self, mesh_name: str) -> np.ndarray:
+        """Return the triangles of this participant's surface ``mesh_name`` (needed by surface mappings).
+
+        An ``(M, 3)`` or ``(M, 6)`` integer array of row indices into
+        :meth:`interface_points` (``(M, 6)``: quadratic triangles, nodes
+        ``v0, v1, v2`` then those on the edges ``(v1, v2)``, ``(v0, v2)``,
+        ``(v0, v1)``); every point must be a node of a triangle.  Replicated
+        on every MPI rank, like the points.
+        """
+        raise NotImplementedError(f"participant {self.name!r} does not implement interface_triangles()")
 
     @abc.abstractmethod
     def solve(self, inputs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -163,14 +191,63 @@ class Participant(abc.ABC):
         """Restore a state returned by :meth:`checkpoint_state` (default: :meth:`load_state`)."""
         self.load_state(state)
 
+    def initialize(self) -> None:
+        """Called once before the scheme's first window (again after :meth:`finalize`)."""
+
+    def begin_window(self, t: float, dt: float) -> None:
+        """Start the time window ``[t, t + dt]``: called once, before its first solve.
+
+        After it, :meth:`save_state` returns the state every iteration of the
+        window starts from.  The default calls :meth:`advance` if the class
+        overrides it (a participant of the earlier protocol), else does nothing.
+        """
+        if _overrides(self, "advance"):
+            self.advance(t, dt)
+
+    def end_window(self, accepted: dict[str, np.ndarray]) -> None:
+        """The window was accepted: called once, after its last solve.
+
+        Args:
+            accepted: The values the window keeps (``accepted_value``) of every
+                data this participant reads (mapped onto its points, as
+                :meth:`solve` receives them) and writes (on its own points).
+                The participant's state is the one its last solve reached.
+        """
+
+    def finalize(self) -> None:
+        """Called once when :meth:`CouplingScheme.solve` or :meth:`~CouplingScheme.run` returns."""
+
     def advance(self, t: float, dt: float) -> None:
-        """Prepare the time window ``[t, t + dt]``; called before each solve of the window.
+        """The earlier protocol's window start, called before each solve of the window.
 
         Must *set* (not increment) the time level, because it is called again
-        after every :meth:`load_state`.
+        after every :meth:`load_state`.  Override :meth:`begin_window` instead
+        in a new participant.
         """
         raise NotImplementedError(f"participant {self.name!r} does not implement advance()")
 
     def initial_data(self, data_name: str) -> np.ndarray | None:
         """Initial value of a data this participant writes, or ``None`` for zeros."""
         return None
+
+
+def _overrides(participant: Participant, method: str) -> bool:
+    """Whether ``participant``'s class defines ``method`` itself rather than inheriting Participant's."""
+    return getattr(type(participant), method) is not getattr(Participant, method)
+
+
+def uses_advance(participant: Participant) -> bool:
+    """Whether ``participant`` keeps the earlier protocol: ``advance`` before every solve.
+
+    True when the most derived class defining ``advance`` or ``begin_window``
+    (below :class:`Participant`) defines ``advance`` and not ``begin_window``.
+    """
+    for cls in type(participant).__mro__:
+        if cls is Participant:
+            return False
+        own = {m: cls.__dict__.get(m) for m in ("begin_window", "advance")}
+        if own["begin_window"] not in (None, Participant.begin_window):
+            return False
+        if own["advance"] not in (None, Participant.advance):
+            return True
+    return False

@@ -68,6 +68,11 @@ class IterationRecord:
     solve_time: dict[str, float] = field(default_factory=dict)
     converged: bool = False
 
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "IterationRecord":
+        """The record whose :func:`dataclasses.asdict` is ``d`` (as a checkpoint holds it)."""
+        return cls(**{**d, "measures": [MeasureValue(**m) for m in d["measures"]]})
+
     def as_dict(self) -> dict[str, Any]:
         """JSON-compatible dictionary."""
         d = asdict(self)
@@ -101,6 +106,11 @@ class WindowRecord:
     records: list[IterationRecord] = field(default_factory=list)
     columns_kept: int = 0
     columns_dropped_at_end: int = 0
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "WindowRecord":
+        """The record whose :func:`dataclasses.asdict` is ``d`` (as a checkpoint holds it)."""
+        return cls(**{**d, "records": [IterationRecord.from_dict(r) for r in d["records"]]})
 
     @property
     def solve_time(self) -> dict[str, float]:

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from coupling.participant import Participant
+from coupling.participant import Participant, uses_advance
 from coupling.records import Recording
 
 __all__ = ["ReplayResult", "replay"]
@@ -80,7 +80,8 @@ def replay(participant: Participant, recording: Recording, iteration: int,
         iteration: Iteration (1-based) within the window.
         window: Window index (default: the last recorded window with that iteration).
         restore_state: In time-dependent runs, call ``load_state`` with the
-            recorded window checkpoint (if in memory) before ``advance(t, dt)``.
+            recorded window checkpoint (if in memory) after ``begin_window(t, dt)``
+            (before ``advance(t, dt)`` for a participant of the earlier protocol).
 
     Returns:
         The :class:`ReplayResult`.
@@ -92,9 +93,15 @@ def replay(participant: Participant, recording: Recording, iteration: int,
     solve = recording.find(participant.name, iteration, window)
     if solve.dt is not None:
         key = (solve.window, participant.name)
-        if restore_state and key in recording.checkpoints:
-            participant.load_state(recording.checkpoints[key])
-        participant.advance(solve.time, solve.dt)
+        restore = restore_state and key in recording.checkpoints
+        if uses_advance(participant):        # the earlier protocol: state saved before advance
+            if restore:
+                participant.load_state(recording.checkpoints[key])
+            participant.advance(solve.time, solve.dt)
+        else:                                # state saved after begin_window
+            participant.begin_window(solve.time, solve.dt)
+            if restore:
+                participant.load_state(recording.checkpoints[key])
     outputs_raw = participant.solve({k: v.copy() for k, v in solve.inputs.items()})
     outputs: dict[str, np.ndarray] = {}
     difference: dict[str, np.ndarray] = {}

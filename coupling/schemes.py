@@ -17,15 +17,19 @@ points) and runs the participants:
   met; **explicit** schemes do one sweep per window.
 
 Time-dependent runs (:meth:`CouplingScheme.run`) split ``[t, t_end]`` into
-windows of length ``dt``.  In each window of an implicit scheme every
-participant's state is saved (``save_state``) before the first iteration and
-restored (``load_state``) before every further one (``state_reload =
-"iteration"``, the default; with ``"window"`` each solve continues from the
-previous iteration's state and states are restored only when a window is
-retaken), and ``advance(t, dt)`` is called before every solve.  The initial
+windows of length ``dt``.  Each window starts with every participant's
+``begin_window(t, dt)``; in an implicit scheme every participant's state is
+then saved (``save_state``) and restored (``load_state``) before every
+further iteration (``state_reload = "iteration"``, the default; with
+``"window"`` each solve continues from the previous iteration's state and
+states are restored only when a window is retaken); an accepted window ends
+with every participant's ``end_window(accepted)`` (the call sequence:
+:class:`coupling.participant.Participant`).  The initial
 guess of a window is the last value of the previous one (constant
 extrapolation; ``extrapolation_order = 1``: linear, ``2``: quadratic, from the last
-two or three windows).
+two or three windows).  A window keeps, for its accelerated data, the last
+values the participants wrote (``x̃``, ``accepted_value = "output"``) or read
+(``x``, ``"input"``).
 
 With a residual ``r = x̃ - x``, the iteration stops with
 :class:`CouplingDivergedError` if a data's values or residual are not finite,
@@ -39,6 +43,7 @@ rank 0 so that every rank takes the same decision.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import hashlib
 import math
 import os
@@ -58,10 +63,11 @@ from coupling.linearization import LinearizedPrior
 from coupling.mapping import Mapping as DataMapping
 from coupling.mapping import as_points, build_mapping
 from coupling.parallel import default_comm
-from coupling.participant import Data, Participant
+from coupling.participant import Data, Participant, uses_advance
 from coupling.records import (CouplingResult, IterationRecord, RecordedSolve, Recording,
                               WindowRecord, format_progress, write_records)
 from coupling.serialization import load_npz, save_npz
+from coupling.surface_mapping import participant_triangles, triangle_owner
 
 __all__ = ["CouplingScheme", "SerialImplicitScheme", "ParallelImplicitScheme",
            "SerialExplicitScheme", "ParallelExplicitScheme", "build_scheme"]
@@ -78,8 +84,8 @@ class CouplingScheme:
         config: A :class:`CouplingConfig` or a ``[coupling]`` table (dict).
         participants: The participants (a sequence, or a mapping name -> participant).
         data: The coupling data.
-        comm: MPI communicator (default: ``MPI.COMM_WORLD`` if mpi4py is
-            available, else serial).
+        comm: MPI communicator (default: :func:`coupling.parallel.default_comm`,
+            ``MPI.COMM_WORLD`` under MPI, else serial without importing mpi4py).
         stream: Where progress lines go (default: ``sys.stdout``).
         surrogate: Optional surrogate model of the same coupled problem for
             the quasi-Newton accelerations: an object with
@@ -96,7 +102,7 @@ class CouplingScheme:
         acceleration: The :class:`Acceleration`.
         time: Start of the next time window.
         window: Index of the next window.
-        history: Records of every window run since construction (or restore).
+        history: Records of every window run since construction (a checkpoint carries them).
         recording: The :class:`Recording` if ``record_data`` is set, else ``None``.
         result: The result of the last :meth:`solve` / :meth:`run`.
     """
@@ -139,6 +145,7 @@ class CouplingScheme:
         self.history: list[WindowRecord] = []
         self.recording: Recording | None = Recording() if self.config.record_data else None
         self.result: CouplingResult | None = None
+        self._initialized = False      # initialize() called, finalize() not yet
 
     # ------------------------------------------------------------------ setup checks
     def _check_participants(self, participants: Any) -> dict[str, Participant]:
@@ -197,8 +204,20 @@ class CouplingScheme:
             for reader in d.readers:
                 mappings[(d.name, reader)] = build_mapping(
                     d.mapping, writer_points, self.points(reader, d.mesh), data_name=d.name,
-                    reader=reader, curve=d.curve, curve_order=d.curve_order)
+                    reader=reader, curve=d.curve, curve_order=d.curve_order,
+                    triangles=self._triangles(d, reader))
         return mappings
+
+    def _triangles(self, d: Data, reader: str) -> np.ndarray | None:
+        """The triangles a surface mapping of ``d`` to ``reader`` projects onto (``None`` for the others)."""
+        owner = triangle_owner(d.mapping, d.writer, reader)
+        if owner is None:
+            return None
+        what = f"data {d.name!r} (reader {reader!r}, mapping {d.mapping!r})"
+        tri = participant_triangles(self.participants[owner], d.mesh, what)
+        if self.config.check_replicated:
+            self._check_replicated(owner, {f"interface_triangles({d.mesh!r})": tri})
+        return tri
 
     def _attach_prior(self, surrogate: Any) -> None:
         """Give the quasi-Newton acceleration its prior: the linearized one, or the ``surrogate``."""
@@ -321,7 +340,8 @@ class CouplingScheme:
         if t is not None:
             if self.implicit and iteration > 1 and self.config.state_reload == "iteration":
                 self._call(name, "load_state", states[name])
-            self._call(name, "advance", t, dt)
+            if uses_advance(self.participants[name]):    # the earlier protocol: before every solve
+                self._call(name, "advance", t, dt)
         inputs = {d: self._mappings[(d, name)](self.values[d]) for d in self._reads[name]}
         recorded_inputs = {k: v.copy() for k, v in inputs.items()} if self.recording else None
         start = _time.perf_counter()
@@ -448,8 +468,10 @@ class CouplingScheme:
         """Iterate one time window (``t is None``: a steady solve) until its status ends it."""
         transient = t is not None
         rec = WindowRecord(window=self.window, time=t, dt=dt)
+        self._initialize()
         if transient:
             self._initial_guess(t, dt)
+            self._begin_window(t, dt)
         states = self._save_window_states(transient)
         x = self.layout.concat(self.values)
         first_r: dict[str, float] = {}
@@ -488,6 +510,39 @@ class CouplingScheme:
             self._window_end(t)
         self._extrapolate(t, dt)
 
+    def _initialize(self) -> None:
+        """Call every participant's ``initialize()`` before the first window (or the first after finalize)."""
+        if not self._initialized:
+            for name in self.order:
+                self.participants[name].initialize()
+            self._initialized = True
+
+    def _begin_window(self, t: float, dt: float) -> None:
+        """Call ``begin_window(t, dt)`` once on every participant but those of the earlier protocol."""
+        for name in self.order:
+            if not uses_advance(self.participants[name]):
+                self.participants[name].begin_window(t, dt)
+
+    def _accept_window(self, x: np.ndarray) -> None:
+        """Keep the window's ``accepted_value`` and tell every participant (``end_window``)."""
+        if self.config.accepted_value == "input" and self.layout.size:
+            self.values.update(self.layout.split(x))    # what the last sweep read
+        for name in self.order:
+            accepted = {d: self.mapped(d, name) for d in self._reads[name]}
+            accepted.update({d: self.values[d].copy() for d in self._writes[name]})
+            self.participants[name].end_window(accepted)
+
+    def finalize(self) -> None:
+        """Call every participant's ``finalize()`` (:meth:`solve` and :meth:`run` do it when they return).
+
+        Call it after the last :meth:`advance_window`.  A later window calls
+        ``initialize()`` again.
+        """
+        if self._initialized:
+            for name in self.order:
+                self.participants[name].finalize()
+            self._initialized = False
+
     def _save_window_states(self, transient: bool) -> dict[str, Any]:
         """Every participant's state at the window start, if it is restored or recorded."""
         states: dict[str, Any] = {}
@@ -516,12 +571,14 @@ class CouplingScheme:
             self._print(format_progress(itrec, transient) + "  max iterations reached")
             if self.config.on_max_iterations == "continue":
                 self._close_acceleration_window(rec, x)
+                self._accept_window(x)
         else:
             itrec.converged = True
             rec.converged, rec.reason = True, status
             if status == "converged":
                 self._close_acceleration_window(rec, x)
             self._print(format_progress(itrec, transient))
+            self._accept_window(x)
 
     def _close_acceleration_window(self, rec: WindowRecord, x: np.ndarray) -> None:
         """Give the acceleration the window's last iterate; record the columns it keeps and drops."""
@@ -595,6 +652,7 @@ class CouplingScheme:
         self.window += 1
         self._finish_window(rec, windows)
         self.result = CouplingResult.from_windows(windows, list(self.data))
+        self.finalize()
         return self.result
 
     def run(self, t_end: float, dt: float) -> CouplingResult:
@@ -625,6 +683,7 @@ class CouplingScheme:
             if not self._advance(dt, windows):
                 break
         self.result = CouplingResult.from_windows(windows, list(self.data))
+        self.finalize()
         return self.result
 
     def advance_window(self, dt: float) -> WindowRecord:
@@ -808,7 +867,7 @@ class CouplingScheme:
 
         Saved: time and window index, the current value of every data, the
         acceleration's complete state (columns, past windows, relaxation,
-        preconditioner weights, inverse Jacobian) and, if
+        preconditioner weights, inverse Jacobian), the window records (:attr:`history`) and, if
         ``include_participants``, each participant's ``checkpoint_state()`` on every
         rank (states must consist of numpy arrays, numbers, strings, lists,
         tuples and dicts; participants raising ``NotImplementedError`` are skipped),
@@ -844,6 +903,8 @@ class CouplingScheme:
                 "values": {n: v.copy() for n, v in self.values.items()},
                 "window_ends": [[t, ends] for t, ends in self.window_ends],
                 "acceleration": self.acceleration.state_dict(),
+                # the records too: the resumed run's iteration logs cover the whole run
+                "history": [dataclasses.asdict(rec) for rec in self.history],
                 "participants": participant_states, "extra": self.comm.gather(extra, root=0)}
 
     @staticmethod
@@ -894,6 +955,7 @@ class CouplingScheme:
                             for t, v in state.get("window_ends", [])]
         self.time = float(state["time"])
         self.window = int(state["window"])
+        self.history = [WindowRecord.from_dict(rec) for rec in state.get("history", [])]
         if include_participants and state["participants"]:
             if int(state["ranks"]) != self.comm.Get_size():
                 raise ValueError(f"{path}: participant states were saved on {state['ranks']} ranks, "
@@ -989,7 +1051,7 @@ def build_scheme(config: CouplingConfig | Mapping[str, Any],
         config: A :class:`CouplingConfig` or a ``[coupling]`` table (dict).
         participants: The participants.
         data: The coupling data.
-        comm: MPI communicator (default ``MPI.COMM_WORLD`` if available).
+        comm: MPI communicator (default: :func:`coupling.parallel.default_comm`).
         stream: Destination of the progress lines (default ``sys.stdout``).
         surrogate: Optional surrogate model for the quasi-Newton prior
             (see :class:`CouplingScheme`).

@@ -225,7 +225,8 @@ def _series_bars_coefficients(segments: Sequence[tuple[float, float, float, floa
 class LinearOdeParticipant(Participant):
     """Backward Euler for ``u' = -K(t) u + C y + s(t)`` on ``m`` interface points.
 
-    Reads ``y`` (data ``read``), writes ``u`` (data ``write``).  State: ``u``.
+    Reads ``y`` (data ``read``), writes ``u`` (data ``write``).  State: ``u``
+    and ``u_n`` (``u_old``), which ``begin_window`` sets to the ``u`` reached.
     In the window ``[t, t + dt]``: ``(I/dt + K(t+dt)) u = u_n/dt + C y + s(t+dt)``.
     """
 
@@ -246,12 +247,14 @@ class LinearOdeParticipant(Participant):
         return np.arange(self.u.size, dtype=float)[:, None]
 
     def save_state(self) -> dict[str, Any]:
-        return {"u": self.u.copy()}
+        return {"u": self.u.copy(), "u_old": self.u_old.copy()}
 
     def load_state(self, state: dict[str, Any]) -> None:
         self.u = np.array(state["u"], dtype=float)
+        self.u_old = np.array(state.get("u_old", self.u), dtype=float)
 
-    def advance(self, t: float, dt: float) -> None:
+    def begin_window(self, t: float, dt: float) -> None:
+        # u_n is kept apart from the iterate u: the window's solves all start from it
         self.u_old = self.u.copy()
         self.t_new = t + dt
         self.dt = dt

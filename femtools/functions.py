@@ -89,8 +89,17 @@ def interpolate(expr, V: fem.FunctionSpace, name: str | None = None) -> fem.Func
 
 
 def von_mises(s):
-    """2D von Mises measure of a 2x2 tensor: sqrt(sxx^2 + syy^2 - sxx syy + 3 sxy^2)."""
-    return ufl.sqrt(s[0, 0]**2 + s[1, 1]**2 - s[0, 0]*s[1, 1] + 3*s[0, 1]**2)
+    """Von Mises measure of a symmetric tensor (model.md sections 2 and 10).
+
+    2x2 (the paper's formula (8)): sqrt(sxx^2 + syy^2 - sxx syy + 3 sxy^2);
+    3x3: sqrt(((sxx - syy)^2 + (syy - szz)^2 + (szz - sxx)^2)/2 + 3 (sxy^2 + syz^2 + szx^2)).
+    """
+    if s.ufl_shape == (2, 2):
+        return ufl.sqrt(s[0, 0]**2 + s[1, 1]**2 - s[0, 0]*s[1, 1] + 3*s[0, 1]**2)
+    if s.ufl_shape != (3, 3):
+        raise ValueError(f"von_mises takes a 2x2 or 3x3 tensor, got shape {s.ufl_shape}")
+    normal = (s[0, 0] - s[1, 1])**2 + (s[1, 1] - s[2, 2])**2 + (s[2, 2] - s[0, 0])**2
+    return ufl.sqrt(0.5 * normal + 3 * (s[0, 1]**2 + s[1, 2]**2 + s[2, 0]**2))
 
 
 def green_lagrange(u, scale=1.0):

@@ -834,6 +834,22 @@ class NewtonSolver:
         self._solution_key = [a.copy() for a in self._current_state_key(self._path_sources)]
         return iterations
 
+    def checkpoint_state(self) -> dict:
+        """What the next solve takes from the past besides the unknowns and the coefficients (collective).
+
+        Whether they are still where the last solve ended: the linear path then
+        takes its one step (:meth:`solve`).  The kept Jacobian at rest needs
+        nothing: it is the same matrix whenever it is factorised.
+        """
+        key = self._current_state_key(self._path_sources)
+        return {"at_solution": bool(self._same_key(key, self._solution_key))}
+
+    def load_checkpoint_state(self, state: typing.Mapping) -> None:
+        """Continue as the solver that wrote ``state``, once the unknowns and coefficients are restored."""
+        at_solution = bool(state.get("at_solution", False))
+        self._solution_key = ([a.copy() for a in self._current_state_key(self._path_sources)]
+                              if at_solution else None)
+
     def _iterate(self, linear_path: bool) -> int:
         self.history = []
         previous = None

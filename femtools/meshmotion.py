@@ -7,7 +7,7 @@ boundaries and extended into the domain by the Laplace problem
     int grad u_m : grad z dX = 0,
 
 u_m = g on the moving boundaries (data), u_m[c] = 0 on the sliding ones (a
-symmetry line: its nodes slide along it) and u_m = 0 on every other boundary
+symmetry line or plane: its nodes slide along it) and u_m = 0 on every other boundary
 (walls, inlets, outlets: the domain's outer shape is kept).  It reproduces an
 affine motion exactly (a linear u_m is discrete harmonic), so a uniformly
 stretched or sheared domain keeps straight-sided cells.  (A stiffness
@@ -16,7 +16,8 @@ weight makes linear fields non-harmonic; at the strains of interest, ~10 %,
 the plain Laplacian leaves the device's refinement bands well shaped.)  The
 problem is linear with a fixed operator: it is assembled and factorised once,
 each new boundary displacement costs one back-substitution.  u_m is in the
-displacement unit of its data (e.g. d L0).
+displacement unit of its data (e.g. d L0).  The same code runs in 2D and 3D
+(vectors of gdim components).
 
 The same residual (``harmonic_residual``) is what the monolithic reference
 assembles, so both move the fluid mesh identically.
@@ -54,9 +55,9 @@ class MeshMotion:
         V: a (collapsed) P2 vector space on the domain's mesh.
         facet_tags: its facet tags.
         moving: ``{name: tags}``: boundaries whose displacement is data
-            (``set_displacement(name, values)`` with (N, 2) nodal values on
+            (``set_displacement(name, values)`` with (N, gdim) nodal values on
             ``InterfaceNodes(V, facet_tags, tags)``).
-        sliding: ``[(tags, component)]``: u_m[component] = 0 (symmetry lines).
+        sliding: ``[(tags, component)]``: u_m[component] = 0 (symmetry lines or planes).
         name: solver name (PETSc prefixes).
         quadrature_degree: of the integral (the monolithic reference must use the same).
         petsc_options: options of its direct solver (``femtools.linalg.DirectSolver``), or of its
@@ -96,11 +97,12 @@ class MeshMotion:
             bcs.append(fem.dirichletbc(fem.Function(Vc), dofs, V.sub(int(comp))))
         held = np.setdiff1d(dmesh.exterior_facet_indices(msh.topology),
                             np.hstack(used) if used else np.empty(0, np.int32)).astype(np.int32)
-        bcs.append(fem.dirichletbc(np.zeros(2, dtype=PETSc.ScalarType),
+        gdim = msh.geometry.dim
+        bcs.append(fem.dirichletbc(np.zeros(gdim, dtype=PETSc.ScalarType),
                                    fem.locate_dofs_topological(V, fdim, held), V))
         u, z = ufl.TrialFunction(V), ufl.TestFunction(V)
         dx = quadrature_measure("dx", msh, degree=quadrature_degree)
-        zero = fem.Constant(msh, PETSc.ScalarType((0.0, 0.0)))
+        zero = fem.Constant(msh, PETSc.ScalarType((0.0,) * gdim))
         krylov = elasticity_solver(V, name, petsc_options) if linear_solver_choice(solver, name) else None
         self.solver = LinearSolver(harmonic_residual(u, z, dx), ufl.inner(zero, z) * dx,
                                    self.displacement, bcs, name=name, petsc_options=petsc_options,
@@ -108,7 +110,7 @@ class MeshMotion:
         self.current = True     # the displacement is the extension of the current data
 
     def set_displacement(self, key: str, values: np.ndarray) -> None:
-        """Nodal displacement (N, 2) of the moving boundary ``key``."""
+        """Nodal displacement (N, gdim) of the moving boundary ``key``."""
         self.nodes[key].to_function(values, self._data[key])
         self._data[key].x.scatter_forward()
         self.current = False

@@ -150,10 +150,11 @@ class RateHistory:
 class WindowClock:
     """The times of a :class:`RateHistory`'s past values, so that entering a time window is idempotent.
 
-    ``enter(t, dt, push)`` is called before every solve of the window
-    [t, t + dt] (also again after the state was restored for another coupling
-    iteration): the first call for a new t pushes the state reached at t
-    (``push()``), later calls do not.  It returns the scheme of the step:
+    ``enter(t, dt, push)`` is called when the window [t, t + dt] starts (the gel
+    participant's ``begin_window``), and may be called again for the same t
+    (a window retaken after a restore, a participant of the coupling's earlier
+    protocol before every solve): the first call for a new t pushes the state
+    reached at t (``push()``), later calls do not.  It returns the scheme of the step:
     backward Euler for the first step (one past value), else ``scheme`` with
     the previous step length for BDF2.
     """

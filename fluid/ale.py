@@ -22,26 +22,29 @@ whose single mesh cannot move the fluid without moving the gel, assembles the
 same form.
 
 Interfaces (Robin parts, on the current interface with its normal n and
-length ratio j = da/dA, Nanson's formula):
+length (2D) or area (3D) ratio j = da/dA, Nanson's formula):
 
     int j [alpha_n (V.n)(v.n) + alpha_t V_t.v_t] dA - int (g_N.n)(v.n) dA - int j g_T,t . v_t dA
         - alpha_n <f, v>
 
-* ``robin_normal`` g_N is a NOMINAL traction (force per unit reference length),
-  like the traction this solver returns;
+* ``robin_normal`` g_N is a NOMINAL traction (force per unit reference length
+  or area), like the traction this solver returns;
 * ``robin_tangential`` g_T is a velocity-type datum (e.g. alpha_t v_f),
-  weighted by the current length;
+  weighted by the current length or area;
 * ``normal_flux`` f (nodal, units V0 L0): the consistent nodal vector
   int j q_n (psi_i n) dA of a normal flux q_n (the gel's
   ``gel.lagrangian.normal_flux_load``); it makes the normal condition
   alpha_n (V.n - q_n) = (g_N - t).n hold in the same weak form as the
   monolithic reference's I13;
-* ``displacement`` (N, 2): the interface's displacement (units of d L0), the
+* ``displacement`` (N, gdim): the interface's displacement (units of d L0), the
   data of the mesh motion.
+
+Every array has gdim = 2 or 3 components: the same code runs on triangles and
+tetrahedra (``femtools.continuum`` gives J, cof F and Nanson's formula in both).
 
 ``traction`` (output) is the consistent reaction of the pulled-back bulk
 form recovered with the reference interface mass matrix: the NOMINAL
-traction on the fluid (its force per unit reference length of the interface).
+traction on the fluid (its force per unit reference length or area of the interface).
 
 The field problem is linear in (V, P) for a given mesh; it is solved by
 ``femtools.linalg.NewtonSolver`` with the operator at rest as the kept
@@ -130,7 +133,7 @@ class MovingStokesSolver(StokesSolver):
 
     Mesh motion (``femtools.meshmotion.MeshMotion``, with the same ``petsc_options``): data on the interfaces
     and ``mesh_boundaries``, sliding on the ``component_bcs`` boundaries
-    (symmetry lines: the component they fix is held), held on every other
+    (symmetry lines or planes: the component they fix is held), held on every other
     boundary.
     """
 
@@ -159,13 +162,13 @@ class MovingStokesSolver(StokesSolver):
         super().__init__(mesh, facet_tags, **kwargs)
         n_owned = self.W.dofmap.index_map.size_local * self.W.dofmap.index_map_bs
         for name, it in self._ifaces.items():
-            self._inputs[name]["displacement"] = 2
+            self._inputs[name]["displacement"] = self.gdim
             if it.spec.normal == "robin":
-                self._inputs[name]["normal_flux"] = 2
+                self._inputs[name]["normal_flux"] = self.gdim
                 dofs = it.nodes.dofs(parent=True)
                 keep = np.all(dofs < n_owned, axis=1)
                 self._flux[name] = {"dofs": dofs[keep], "rows": it.nodes.index[keep],
-                                    "values": np.zeros((it.nodes.size, 2))}
+                                    "values": np.zeros((it.nodes.size, self.gdim))}
 
     @property
     def linear_path(self) -> bool:
@@ -237,7 +240,7 @@ class MovingStokesSolver(StokesSolver):
             super()._set_input(interface, key, values)
 
     def set_boundary_displacement(self, name: str, value) -> None:
-        """Mesh displacement of ``mesh_boundaries[name]``: (N, 2) nodal values or a callable ``x -> (2, n)``."""
+        """Mesh displacement of ``mesh_boundaries[name]``: (N, gdim) nodal values or a callable ``x -> (gdim, n)``."""
         if name not in self._mesh_boundaries:
             raise KeyError(f"{self.name}: no mesh boundary {name!r}; it has {sorted(self._mesh_boundaries)}")
         if callable(value):
@@ -274,12 +277,14 @@ class MovingStokesSolver(StokesSolver):
         mixed, order = self._orders()
         state = {f"state_{k}": v for k, v in mixed.gather(self.w.x.array).items()}
         state["mesh"] = order.gather(self.mesh_displacement.x.array)
+        state["newton"] = self.newton.checkpoint_state()        # the linear path's starting point
         return state
 
     def load_checkpoint_state(self, state) -> None:
         mixed, order = self._orders()
         mixed.scatter({k: state[f"state_{k}"] for k in ("V", "P")}, self.w.x.array)
         self.mesh_displacement.x.array[:] = order.scatter(state["mesh"])
+        self.newton.load_checkpoint_state(state.get("newton", {}))
 
     @property
     def stats(self) -> dict:

@@ -8,7 +8,7 @@ Boundary conditions, per tagged boundary:
 
 * ``velocity_bcs``: V = g (full vector);
 * ``component_bcs``: V_c = g_c (one Cartesian component, e.g. V_y = 0 on a
-  symmetry line; the other component is traction-free);
+  symmetry line or plane; the other components are traction-free);
 * interfaces (``FluidInterface``), each split into its normal and tangential
   part, ``"robin"`` or ``"dirichlet"``::
 
@@ -17,9 +17,13 @@ Boundary conditions, per tagged boundary:
 
   with ``t = (Sigma - P I) n`` the traction exerted ON the fluid, ``n`` the
   fluid's OUTWARD unit normal and ``w_tau = w - (w.n) n``.  alpha = 0 is a
-  prescribed traction.  A single Dirichlet part needs a straight,
-  axis-aligned interface (it becomes a component condition);
+  prescribed traction.  A single Dirichlet part needs a flat, axis-aligned
+  interface (a line x_k = const in 2D, a plane in 3D): it becomes a condition
+  on the normal component, or on the tangential ones;
 * every other boundary is traction-free ("do nothing": t = 0).
+
+The same code runs on 2D triangles and 3D tetrahedra: vectors (data, points,
+forces) have gdim = 2 or 3 components.
 
 Consistent interface traction.  The traction returned on an interface is the
 P2 field lambda on the interface defined by
@@ -65,6 +69,7 @@ from fluid import forms
 __all__ = ["FluidInterface", "StokesSolver"]
 
 _KINDS = ("robin", "dirichlet")
+_POINT = {2: "(x, y)", 3: "(x, y, z)"}
 
 
 @dataclasses.dataclass
@@ -105,16 +110,15 @@ class FluidInterface:
                                  f"not with {part}='dirichlet'")
             setattr(self, alpha, value)
 
-    @property
-    def inputs(self) -> dict[str, int]:
-        """Input arrays this interface takes (name -> number of components)."""
+    def inputs(self, dim: int) -> dict[str, int]:
+        """Input arrays this interface takes in ``dim`` dimensions (name -> number of components)."""
         out = {}
         if "dirichlet" in (self.normal, self.tangential):
-            out["velocity"] = 2
+            out["velocity"] = dim
         if self.normal == "robin":
-            out["robin_normal"] = 2
+            out["robin_normal"] = dim
         if self.tangential == "robin":
-            out["robin_tangential"] = 2
+            out["robin_tangential"] = dim
         return out
 
 
@@ -125,9 +129,9 @@ class _Interface:
         self.name, self.spec, self.marker = name, spec, marker
         self.nodes: InterfaceNodes | None = None
         self.g_velocity: fem.Function | None = None       # full Dirichlet data (P2 vector)
-        self.g_component: fem.Function | None = None      # single-part Dirichlet data (P2 scalar)
-        self.component_nodes: InterfaceNodes | None = None
-        self.component: int | None = None                 # Cartesian component of a single Dirichlet part
+        self.components: tuple[int, ...] = ()             # Cartesian components of a single Dirichlet part
+        self.g_component: list[fem.Function] = []        # their data (P2 scalars)
+        self.component_nodes: list[InterfaceNodes] = []
         self.g_normal: fem.Function | None = None
         self.g_tangential: fem.Function | None = None
         self.alpha_n: fem.Constant | None = None
@@ -136,7 +140,7 @@ class _Interface:
         self.traction_mass: InterfaceMass | None = None
         self.force_form = None
         self.traction_current = False
-        self.own_constrained = [np.empty(0, np.int32), np.empty(0, np.int32)]   # V dofs fixed by its own Dirichlet part
+        self.own_constrained: list[np.ndarray] = []      # per component: V dofs fixed by its own Dirichlet part
 
 
 class StokesSolver(FieldSolver):
@@ -148,19 +152,20 @@ class StokesSolver(FieldSolver):
     the interface mass matrices used to recover the consistent traction.
 
     Args:
-        mesh: the fluid mesh (2D; P1 or P2 geometry).
+        mesh: the fluid mesh: triangles in 2D or tetrahedra in 3D (gdim = tdim;
+            P1 or P2 geometry).  Below, vectors have gdim components.
         facet_tags: facet tags of ``mesh``.
         viscosity: mu in the chosen stress unit (``Ca`` in units of mu_s, 1 in
             units of mu V0 / L0).
         velocity_bcs: ``[(tags, value)]``, full-vector Dirichlet conditions.
-            ``value`` is a constant ``(vx, vy)`` or a callable
-            ``x -> (2, npts)`` array (as ``Function.interpolate``).
+            ``value`` is a constant ``(vx, vy[, vz])`` or a callable
+            ``x -> (gdim, npts)`` array (as ``Function.interpolate``).
         component_bcs: ``[(tags, component, value)]``, one Cartesian
             component fixed (``value`` a float or ``x -> (npts,)``); the other
-            component is traction-free.
+            components are traction-free.
         interfaces: ``{name: FluidInterface}``.
-        body_force: optional f: a UFL expression, a constant ``(fx, fy)`` or
-            a callable ``x -> (2, npts)`` (interpolated into P2).
+        body_force: optional f: a UFL expression, a constant ``(fx, fy[, fz])``
+            or a callable ``x -> (gdim, npts)`` (interpolated into P2).
         name: solver name (PETSc prefixes, messages).
         quadrature_degree: quadrature degree of every cell and facet integral
             (the monolithic reference must use the same).
@@ -168,7 +173,7 @@ class StokesSolver(FieldSolver):
             ``solver="iterative"``, e.g. ``fieldsplit_u_pc_type``).
         solver: "direct" (MUMPS LDL^T) or "iterative" (MINRES with a block preconditioner,
             ``femtools.krylov.stokes_solver``).
-        pressure_pin: optional point ``(x, y)``: P = 0 at the pressure node
+        pressure_pin: optional point ``(x, y[, z])``: P = 0 at the pressure node
             nearest to it.  Required when the normal velocity is prescribed
             on the whole boundary (P is then defined only up to a constant;
             the constructor raises without it).
@@ -177,12 +182,12 @@ class StokesSolver(FieldSolver):
     the order interfaces, ``component_bcs``, ``velocity_bcs``: the outer
     boundary conditions win at the ends of an interface.
 
-    Interface inputs (each ``(N, 2)`` on ``interface_points(name)``; unset
+    Interface inputs (each ``(N, gdim)`` on ``interface_points(name)``; unset
     inputs are zero): ``"velocity"`` g_V (if a part is Dirichlet),
     ``"robin_normal"`` g_N (only g_N.n is used), ``"robin_tangential"`` g_T
     (only its tangential part is used).
 
-    Interface outputs: ``"velocity"`` (N, 2) nodal V and ``"traction"`` (N, 2)
+    Interface outputs: ``"velocity"`` (N, gdim) nodal V and ``"traction"`` (N, gdim)
     nodal consistent traction lambda ON the fluid (see the module docstring).
 
     Example::
@@ -217,6 +222,7 @@ class StokesSolver(FieldSolver):
         self.mesh, self.facet_tags = mesh, facet_tags
         self.quadrature_degree = int(quadrature_degree)
         self.comm: MPI.Comm = mesh.comm
+        self.gdim = mesh.geometry.dim
         self._fdim = mesh.topology.dim - 1
         mesh.topology.create_connectivity(self._fdim, mesh.topology.dim)
         self._build_spaces(viscosity)
@@ -258,7 +264,7 @@ class StokesSolver(FieldSolver):
         """The linear solver of ``F`` (linear in ``trial``): assembled and factorised once."""
         a, L = ufl.lhs(F), ufl.rhs(F)
         # keep L a non-empty form when there is neither a body force nor Robin data
-        zero = fem.Constant(self.mesh, PETSc.ScalarType((0.0, 0.0)))
+        zero = fem.Constant(self.mesh, PETSc.ScalarType((0.0,) * self.gdim))
         L = L + ufl.inner(zero, v) * self.dx
         return LinearSolver(a, L, self.w, bcs, name=self.name, petsc_options=petsc_options,
                             linear_solver=self._krylov_solver(a, bcs, petsc_options))
@@ -287,8 +293,9 @@ class StokesSolver(FieldSolver):
         name = self.name
         if not np.isfinite(viscosity) or viscosity <= 0:
             raise ValueError(f"{name}: viscosity must be finite and > 0, got {viscosity}")
-        if mesh.geometry.dim != 2 or mesh.topology.dim != 2:
-            raise ValueError(f"{name}: mesh must be 2D (gdim = tdim = 2), got gdim={mesh.geometry.dim}")
+        if mesh.geometry.dim not in (2, 3) or mesh.topology.dim != mesh.geometry.dim:
+            raise ValueError(f"{name}: mesh must be 2D or 3D with gdim = tdim (triangles or tetrahedra), "
+                             f"got gdim={mesh.geometry.dim}, tdim={mesh.topology.dim}")
         if int(quadrature_degree) < 1:
             raise ValueError(f"{name}: quadrature_degree must be >= 1, got {quadrature_degree}")
         interfaces = dict(interfaces or {})
@@ -307,7 +314,7 @@ class StokesSolver(FieldSolver):
         self.Q, Q_to_W = self.W.sub(1).collapse()
         self._V_to_W = np.asarray(V_to_W, dtype=np.int32)
         self._Q_to_W = np.asarray(Q_to_W, dtype=np.int32)
-        self._Vc = [self.W.sub(0).sub(c).collapse() for c in range(2)]    # (space, map to W)
+        self._Vc = [self.W.sub(0).sub(c).collapse() for c in range(mesh.geometry.dim)]    # (space, map to W)
         self.w = fem.Function(self.W, name="w")
         self._u = fem.Function(self.V, name="V")
         self._p = fem.Function(self.Q, name="P")
@@ -318,9 +325,10 @@ class StokesSolver(FieldSolver):
         """``velocity_bcs`` and ``component_bcs`` with their tags as tuples, checked (``_check_tags``)."""
         velocity_bcs = [(as_tags(tags, "velocity_bcs"), value) for tags, value in velocity_bcs]
         component_bcs = [(as_tags(tags, "component_bcs"), int(c), value) for tags, c, value in component_bcs]
+        allowed = "0 (x) or 1 (y)" if self.gdim == 2 else "0 (x), 1 (y) or 2 (z)"
         for tags, c, _ in component_bcs:
-            if c not in (0, 1):
-                raise ValueError(f"{self.name}: component_bcs component must be 0 (x) or 1 (y), "
+            if not 0 <= c < self.gdim:
+                raise ValueError(f"{self.name}: component_bcs component must be {allowed} in {self.gdim}D, "
                                  f"got {c} for tags {tags}")
         self._check_tags(velocity_bcs, component_bcs, interfaces)
         return velocity_bcs, component_bcs
@@ -336,7 +344,7 @@ class StokesSolver(FieldSolver):
             marker_facets.append(facets)
             marker_values.append(np.full(facets.size, it.marker, dtype=np.int32))
             self._ifaces[iname] = it
-            self._add_interface(iname, it.nodes, spec.inputs)
+            self._add_interface(iname, it.nodes, spec.inputs(self.gdim))
         if marker_facets:
             f = np.hstack(marker_facets)
             order = np.argsort(f)
@@ -348,7 +356,7 @@ class StokesSolver(FieldSolver):
     def _dirichlet_bcs(self, velocity_bcs, component_bcs, pressure_pin) -> list:
         """Dirichlet conditions, interfaces first (outer boundaries win), then the pressure pin or the
         check that the pressure is determined without one."""
-        self._constrained = [np.empty(0, np.int32), np.empty(0, np.int32)]   # V dofs per component
+        self._constrained = [np.empty(0, np.int32) for _ in range(self.gdim)]   # V dofs per component
         self._boundary_values: list[tuple[fem.Function, np.ndarray]] = []     # (data, its unscaled values)
         self.boundary_velocity_scale = 1.0
         bcs = []
@@ -396,13 +404,14 @@ class StokesSolver(FieldSolver):
             f.interpolate(body_force)
             f.x.scatter_forward()
             return f
+        d = self.gdim
         if isinstance(body_force, ufl.core.expr.Expr):
-            if body_force.ufl_shape != (2,):
-                raise ValueError(f"{self.name}: body_force must be a 2-vector, got shape {body_force.ufl_shape}")
+            if body_force.ufl_shape != (d,):
+                raise ValueError(f"{self.name}: body_force must be a {d}-vector, got shape {body_force.ufl_shape}")
             return body_force
         value = np.asarray(body_force, dtype=float)
-        if value.shape != (2,):
-            raise ValueError(f"{self.name}: body_force must be a UFL 2-vector, a callable or (fx, fy), "
+        if value.shape != (d,):
+            raise ValueError(f"{self.name}: body_force must be a UFL {d}-vector, a callable or {d} numbers, "
                              f"got {body_force!r}")
         return fem.Constant(self.mesh, PETSc.ScalarType(tuple(value)))
 
@@ -411,7 +420,7 @@ class StokesSolver(FieldSolver):
         spec = it.spec
         if spec.normal == "dirichlet" and spec.tangential == "dirichlet":
             return 0
-        zero = ufl.as_vector((0.0, 0.0))
+        zero = ufl.as_vector((0.0,) * self.gdim)
         if spec.normal == "robin":
             it.alpha_n = fem.Constant(self.mesh, PETSc.ScalarType(spec.alpha_n))
             it.g_normal = fem.Function(self.V, name=f"{it.name}_robin_normal")
@@ -438,8 +447,8 @@ class StokesSolver(FieldSolver):
         self._boundary_values.append((g, g.x.array.copy()))
         dofs = fem.locate_dofs_topological((self.W.sub(0), self.V), self._fdim, self._facets(tags))
         blocks = self._locate(tags)
-        for c in range(2):
-            self._mark_constrained(2 * blocks + c, c)
+        for c in range(self.gdim):
+            self._mark_constrained(self.gdim * blocks + c, c)
         return fem.dirichletbc(g, dofs, self.W.sub(0))
 
     def _component_bc(self, tags, c, value) -> fem.DirichletBCMetaClass:
@@ -452,51 +461,58 @@ class StokesSolver(FieldSolver):
         g = set_function(fem.Function(Vc), value, f"{self.name}: component_bcs value for tags {tags}")
         self._boundary_values.append((g, g.x.array.copy()))
         dofs = fem.locate_dofs_topological((self.W.sub(0).sub(c), Vc), self._fdim, self._facets(tags))
-        self._mark_constrained(2 * self._locate(tags) + c, c)
+        self._mark_constrained(self.gdim * self._locate(tags) + c, c)
         return fem.dirichletbc(g, dofs, self.W.sub(0).sub(c))
 
     def _interface_bcs(self, it: _Interface) -> list:
-        spec = it.spec
+        spec, d = it.spec, self.gdim
+        it.own_constrained = [np.empty(0, np.int32) for _ in range(d)]
         parts = [spec.normal == "dirichlet", spec.tangential == "dirichlet"]
         if not any(parts):
             return []
+        blocks = self._locate(spec.tags)
         if all(parts):
             it.g_velocity = fem.Function(self.V, name=f"{it.name}_velocity")
             dofs = fem.locate_dofs_topological((self.W.sub(0), self.V), self._fdim, self._facets(spec.tags))
-            blocks = self._locate(spec.tags)
-            it.own_constrained = [2 * blocks, 2 * blocks + 1]
+            it.own_constrained = [d * blocks + c for c in range(d)]
             return [fem.dirichletbc(it.g_velocity, dofs, self.W.sub(0))]
         normal_axis = self._normal_axis(it)
-        it.component = normal_axis if parts[0] else 1 - normal_axis
-        Vc = self._Vc[it.component][0]
-        it.g_component = fem.Function(Vc, name=f"{it.name}_velocity_{it.component}")
-        it.component_nodes = InterfaceNodes(Vc, self.facet_tags, spec.tags)
-        if not np.array_equal(it.component_nodes.points, it.nodes.points):
-            raise RuntimeError(f"{self.name}: interface {it.name!r}: scalar and vector P2 nodes differ")
-        dofs = fem.locate_dofs_topological((self.W.sub(0).sub(it.component), Vc), self._fdim,
-                                           self._facets(spec.tags))
-        it.own_constrained[it.component] = 2 * self._locate(spec.tags) + it.component
-        return [fem.dirichletbc(it.g_component, dofs, self.W.sub(0).sub(it.component))]
+        it.components = (normal_axis,) if parts[0] else tuple(c for c in range(d) if c != normal_axis)
+        bcs = []
+        for c in it.components:
+            Vc = self._Vc[c][0]
+            g = fem.Function(Vc, name=f"{it.name}_velocity_{c}")
+            nodes = InterfaceNodes(Vc, self.facet_tags, spec.tags)
+            if not np.array_equal(nodes.points, it.nodes.points):
+                raise RuntimeError(f"{self.name}: interface {it.name!r}: scalar and vector P2 nodes differ")
+            it.g_component.append(g)
+            it.component_nodes.append(nodes)
+            dofs = fem.locate_dofs_topological((self.W.sub(0).sub(c), Vc), self._fdim, self._facets(spec.tags))
+            it.own_constrained[c] = d * blocks + c
+            bcs.append(fem.dirichletbc(g, dofs, self.W.sub(0).sub(c)))
+        return bcs
 
     def _normal_axis(self, it: _Interface) -> int:
-        """0 if the interface is a line x = const, 1 if y = const; otherwise raise."""
+        """k if the interface lies in the line or plane x_k = const; otherwise raise."""
         pts = it.nodes.points
         scale = 1.0 + np.abs(pts).max()
         spread = pts.max(axis=0) - pts.min(axis=0)
-        straight = spread <= 1e-10 * scale
-        if straight[0] == straight[1]:
+        flat = np.flatnonzero(spread <= 1e-10 * scale)
+        if flat.size != 1:
+            spans = ", ".join(f"d{'xyz'[k]}={spread[k]:.3g}" for k in range(pts.shape[1]))
             raise ValueError(
                 f"{self.name}: interface {it.name!r} has normal={it.spec.normal!r} and "
-                f"tangential={it.spec.tangential!r}; a single Dirichlet part is only allowed on a straight, "
-                f"axis-aligned interface (x = const or y = const), but its nodes span "
-                f"dx={spread[0]:.3g}, dy={spread[1]:.3g}. Use 'dirichlet' for both parts or 'robin'.")
-        return 0 if straight[0] else 1
+                f"tangential={it.spec.tangential!r}; a single Dirichlet part is only allowed on a flat, "
+                f"axis-aligned interface (x = const, y = const{', z = const' if pts.shape[1] == 3 else ''}), "
+                f"but its nodes span {spans}. Use 'dirichlet' for both parts or 'robin'.")
+        return int(flat[0])
 
     def _pressure_pin(self, point) -> fem.DirichletBCMetaClass:
+        gdim = self.gdim
         point = np.asarray(point, dtype=float).reshape(-1)
-        if point.shape != (2,) or not np.all(np.isfinite(point)):
-            raise ValueError(f"{self.name}: pressure_pin must be a point (x, y), got {point!r}")
-        X = self.Q.tabulate_dof_coordinates()[:, :2]
+        if point.shape != (gdim,) or not np.all(np.isfinite(point)):
+            raise ValueError(f"{self.name}: pressure_pin must be a point {_POINT[gdim]}, got {point!r}")
+        X = self.Q.tabulate_dof_coordinates()[:, :gdim]
         n_owned = self.Q.dofmap.index_map.size_local
         d = np.linalg.norm(X[:n_owned] - point, axis=1)
         local = (float(d.min()), self.comm.rank) if d.size else (np.inf, self.comm.rank)
@@ -504,7 +520,7 @@ class StokesSolver(FieldSolver):
         node = self.comm.bcast(X[int(np.argmin(d))] if self.comm.rank == owner else None, root=owner)
         tol = 1e-12 * (1 + np.abs(node).max())
         dofs = fem.locate_dofs_geometrical((self.W.sub(1), self.Q),
-                                           lambda x: np.linalg.norm(x[:2].T - node, axis=1) < tol)
+                                           lambda x: np.linalg.norm(x[:gdim].T - node, axis=1) < tol)
         return fem.dirichletbc(fem.Function(self.Q), dofs, self.W.sub(1))
 
     def _check_pressure_determined(self) -> None:
@@ -514,7 +530,7 @@ class StokesSolver(FieldSolver):
         to a constant.  The normal-flow device has two fluid parts, upstream and
         downstream of the gel, so each one needs a free boundary of its own.
         """
-        msh, fdim = self.mesh, self._fdim
+        msh, fdim, gdim = self.mesh, self._fdim, self.gdim
         ext = dmesh.exterior_facet_indices(msh.topology)
         free = np.ones(ext.size, dtype=bool)
         full = [t for tags, _ in self._velocity_bcs for t in tags]
@@ -522,9 +538,10 @@ class StokesSolver(FieldSolver):
         free &= ~np.isin(ext, self._facets(full))
         geo = _cpp.mesh.entities_to_geometry(msh._mesh, fdim, ext, False)
         x = msh.geometry.x
-        d = np.abs(x[geo[:, 1], :2] - x[geo[:, 0], :2]) if ext.size else np.zeros((0, 2))
+        corners = x[geo[:, :fdim + 1], :gdim] if ext.size else np.zeros((0, fdim + 1, gdim))
+        d = corners.max(axis=1) - corners.min(axis=1)      # the facet's extent along each axis
         for tags, c, _ in self._component_bcs:
-            # component c is the normal one on a facet along the other axis
+            # component c is the normal one on a facet in the plane (line) x_c = const
             along = d[:, c] <= 1e-12 * (d.sum(axis=1) + 1e-300)
             free &= ~(np.isin(ext, self._facets(tags)) & along)
         labels, count = connected_components(msh)
@@ -541,13 +558,13 @@ class StokesSolver(FieldSolver):
         n_owned = msh.topology.index_map(msh.topology.dim).size_local
         mine = np.flatnonzero(labels[:n_owned] == enclosed[0])
         first_nodes = msh.geometry.dofmap.array[msh.geometry.dofmap.offsets[mine]]
-        sums = np.append(x[first_nodes, :2].sum(axis=0), mine.size)
+        sums = np.append(x[first_nodes, :gdim].sum(axis=0), mine.size)
         self.comm.Allreduce(MPI.IN_PLACE, sums, op=MPI.SUM)
-        where = sums[:2] / sums[2]
+        where = ", ".join(f"{w:.3g}" for w in sums[:gdim] / sums[gdim])
         raise ValueError(f"{self.name}: the normal velocity is prescribed on the whole boundary of "
                          f"{enclosed.size} of its {count} connected part(s) (the first one near "
-                         f"({where[0]:.3g}, {where[1]:.3g})), so the pressure there is determined only up "
-                         f"to a constant; leave part of that boundary free or pass pressure_pin=(x, y)")
+                         f"({where})), so the pressure there is determined only up "
+                         f"to a constant; leave part of that boundary free or pass pressure_pin={_POINT[gdim]}")
 
     def _setup_traction_recovery(self) -> None:
         """Interface mass matrices on the interface nodes, and the reaction near the interfaces.
@@ -571,15 +588,15 @@ class StokesSolver(FieldSolver):
         self._reaction = fem_petsc.create_vector(self._reaction_form)
         self._reaction_current = False
         self._traction_stats = SolverStats()
-        self._direction = fem.Constant(self.mesh, PETSc.ScalarType((1.0, 0.0)))
+        self._direction = fem.Constant(self.mesh, PETSc.ScalarType(np.eye(self.gdim)[0]))
         t0 = time.perf_counter()
         for it in self._ifaces.values():
             ft = self._single_marker(it)
             ds = quadrature_measure("ds", self.mesh, ft, degree=self.quadrature_degree)
             it.traction = fem.Function(V, name=f"{it.name}_traction")
-            on = it.nodes.dofs()              # local (n, 2) unrolled V dofs on the interface
+            on = it.nodes.dofs()              # local (n, gdim) unrolled V dofs on the interface
             keep = np.zeros(on.shape)
-            for c in range(2):
+            for c in range(self.gdim):
                 # fixed by another boundary: outer Dirichlet conditions and the other interfaces'
                 other = [self._constrained[c]] + [o.own_constrained[c] for o in self._ifaces.values() if o is not it]
                 keep[:, c] = ~np.isin(on[:, c], np.hstack(other))
@@ -610,7 +627,8 @@ class StokesSolver(FieldSolver):
             if it.g_velocity is not None:
                 it.nodes.to_function(values, it.g_velocity)
             else:
-                it.component_nodes.to_function(values[:, it.component], it.g_component)
+                for c, nodes, g in zip(it.components, it.component_nodes, it.g_component):
+                    nodes.to_function(values[:, c], g)
         elif key == "robin_normal":
             it.nodes.to_function(values, it.g_normal)
         elif key == "robin_tangential":
@@ -649,7 +667,7 @@ class StokesSolver(FieldSolver):
         return it.traction
 
     def interface_data(self, name: str) -> dict[str, np.ndarray]:
-        """``{"velocity": (N, 2), "traction": (N, 2)}`` on ``interface_points(name)``.
+        """``{"velocity": (N, gdim), "traction": (N, gdim)}`` on ``interface_points(name)``.
 
         ``traction`` is the consistent traction lambda exerted ON the fluid
         (t = (Sigma - P I) n, n the fluid's outward normal); components fixed
@@ -673,7 +691,7 @@ class StokesSolver(FieldSolver):
         components where another Dirichlet condition fixes the velocity) and ``in_key``
         among the interface's Robin inputs ``"robin_normal"``, ``"robin_tangential"``
         (as :meth:`set_interface_data` takes them).  ``J`` is dense, shape
-        ``(2 N_out, 2 N_in)``: row ``2 i + c`` is node ``i`` of ``interface_points(out_interface)``,
+        ``(d N_out, d N_in)`` (d = gdim): row ``d i + c`` is node ``i`` of ``interface_points(out_interface)``,
         component ``c``; the columns likewise for the input.  The same arrays on every rank.
 
         The map is affine (the operator does not depend on the data), so
@@ -708,7 +726,7 @@ class StokesSolver(FieldSolver):
         return [key for key in ("robin_normal", "robin_tangential") if key in self._inputs[it.name]]
 
     def _jacobian_input(self, it: _Interface, key: str, data: dict, rows: np.ndarray) -> np.ndarray:
-        """d(right-hand side at the kept velocity dofs) / d(input array ``key`` of ``it``): sparse (n_kept, 2N)."""
+        """d(right-hand side at the kept velocity dofs) / d(input array ``key`` of ``it``): sparse (n_kept, gdim N)."""
         return data[it.name][key]
 
     # -- construction -------------------------------------------------------------
@@ -792,7 +810,7 @@ class StokesSolver(FieldSolver):
 
     def _kept_velocity_dofs(self, ifaces: list) -> tuple[np.ndarray, dict]:
         """The free interface velocity dofs (global, in W, sorted) and, per interface, the position in
-        them of each of its (N, 2) dofs (-1 where fixed)."""
+        them of each of its (N, gdim) dofs (-1 where fixed)."""
         vel = {it.name: it.nodes.global_dofs(self.W, parent=True, bcs=self.bcs).ravel() for it in ifaces}
         kept_v = np.unique(np.hstack(list(vel.values())))
         kept_v = kept_v[kept_v >= 0]
@@ -854,13 +872,13 @@ class StokesSolver(FieldSolver):
         return self._p
 
     def interface_force(self, name: str) -> np.ndarray:
-        """Total force ON the fluid over interface ``name``: int_Gamma lambda ds, shape (2,)."""
+        """Total force ON the fluid over interface ``name``: int_Gamma lambda ds, shape (gdim,)."""
         self.interface_nodes(name)
         it = self._ifaces[name]
         self._traction(it)
-        force = np.zeros(2)
-        for c in range(2):
-            self._direction.value[:] = (1.0, 0.0) if c == 0 else (0.0, 1.0)
+        force = np.zeros(self.gdim)
+        for c in range(self.gdim):
+            self._direction.value[:] = np.eye(self.gdim)[c]
             force[c] = self.comm.allreduce(fem.assemble_scalar(it.force_form), op=MPI.SUM)
         return force
 

@@ -11,6 +11,9 @@ velocity v_s = du_s/dt, pore pressure p.  Model.md sections 2 and 8
     sigma_s = J^-1 (F F^T - I) + lambda_s (J - 1) I,   F = I + grad u_s
     phi_s = phi_s0 / J  (G1 in Lagrangian form),  phi_f = 1 - phi_s
 
+The forms are dimension-independent: the same UFL serves triangles (2D, plane
+strain) and tetrahedra (3D); only ``femtools.continuum`` tells J and cof F apart.
+
 Every form takes v_f and v_s as UFL expressions; ``v_s=None`` is the steady
 state (v_s = 0).  The solvers' unknown is the relative velocity
 w = v_f - v_s (v_f = w + v_s), so that v_f = v_s on the cell (Gamma2) and

@@ -37,7 +37,7 @@ cancellation-free kinematics of ``femtools.continuum``.
 
 Interface terms on Gamma1/Gamma3 (I14 with I15 and I17, the split of
 model.md section 6) hold on the CURRENT interface.  The traction they take,
-``T0``, is NOMINAL: the fluid's force per unit REFERENCE length (T0 = j T with
+``T0``, is NOMINAL: the fluid's force per unit REFERENCE length, area in 3D (T0 = j T with
 T = (Sigma - P I) n the Cauchy traction), which is what a consistent reaction
 on the fixed reference mesh is.  Pulled back with da = j dA:
 
@@ -141,7 +141,7 @@ def fluid_interface_residual(v_f, u, w, z, T0, V, N, c: GelCoefficients, ds, v_s
     """Boundary terms on a fluid-gel interface on the current configuration (module docstring).
 
     ``T0`` is the fluid's NOMINAL traction on the gel (force per unit
-    reference length), ``V`` the fluid velocity, ``N`` the reference outward
+    reference length or area), ``V`` the fluid velocity, ``N`` the reference outward
     normal of the gel (``ufl.FacetNormal``).
     """
     j, n = surface_stretch(u, c.d, N)

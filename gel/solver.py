@@ -1,6 +1,7 @@
 """Poroelastic gel field solver, steady or time-dependent (model.md sections 2, 3, 6 and 8).
 
-Unknowns on the gel's own mesh, in one mixed space in this order:
+Unknowns on the gel's own mesh (triangles in 2D, plane strain, or tetrahedra in 3D: the same
+code; ``dim`` = 2 or 3 below is the mesh's dimension), in one mixed space in this order:
 
     w    relative velocity v_f - v_s of the interstitial fluid (P2 vector), units of V0
     u    network displacement u_s (P2 vector), units of d L0  (u_s = d u)
@@ -39,24 +40,24 @@ Boundary conditions (n is the gel's outward normal everywhere):
   tractions of both phases are zero (natural).
 * ``fluid_interfaces`` {name: tags} (Gamma1, Gamma3): the split of
   model.md section 6 as written in ``gel.forms.fluid_interface_residual``.
-  Inputs (N, 2) each: ``traction`` T = (Sigma - P I) n, the fluid's traction
-  ON the gel (force per unit length, stress unit s; with ``kinematics="finite"``
+  Inputs (N, dim) each: ``traction`` T = (Sigma - P I) n, the fluid's traction
+  ON the gel (force per unit length, area in 3D, stress unit s; with ``kinematics="finite"``
   per unit REFERENCE length, the nominal traction), ``velocity`` V, the
   fluid velocity (units of V0).  Outputs: ``mixture_velocity``
   phi_f v_f + phi_s v_s (its normal component is the volume flux from the gel
   into the fluid, I13), ``superficial_velocity`` phi_f v_f,
   ``interstitial_velocity`` v_f, ``traction`` the total traction the gel
-  exerts there, (N, 2), and ``pressure`` p, (N, 1); finite kinematics add
+  exerts there, (N, dim), and ``pressure`` p, (N, 1); finite kinematics add
   ``normal_flux`` (the consistent nodal volume flux through the current
   interface) and ``displacement`` (for the fluid's mesh motion).
 * ``cell_interfaces`` {name: tags} (Gamma2): w = 0, i.e. v_f = v_s (= v_c,
   since u_s = u_c there and both use the same time discretisation).  Input
-  ``force`` (N, 2): NODAL forces ON the gel from the cell (entries of a
+  ``force`` (N, dim): NODAL forces ON the gel from the cell (entries of a
   consistent load vector, units of s L0, not a traction density); they enter
-  the mixture equation.  Output ``displacement`` (N, 2): nodal u in units of d L0.
+  the mixture equation.  Output ``displacement`` (N, dim): nodal u in units of d L0.
   With an interface stiffness K (``set_interface_stiffnesses``, a Robin
   condition) the load is ``force + K (u* - u)``, u* the input
-  ``displacement`` (N, 2) (units of d L0; unused without K).
+  ``displacement`` (N, dim) (units of d L0; unused without K).
 * ``tractions`` [(tags, value)]: a dead load t on the mixture equation,
   (phi_f sigma_f + phi_s sigma_s - p I) n = t (stress unit s), e.g. a
   permeable piston on a drained surface (Terzaghi).
@@ -159,13 +160,13 @@ def _interface_set(sel, pressure) -> tuple[np.ndarray, int]:
 
 
 def _positions(pos: np.ndarray, dofs) -> np.ndarray:
-    """Positions in G of (N, 2) dofs, -1 where fixed (``pos``: the position of each dof, -1 off G)."""
+    """Positions in G of (N, dim) dofs, -1 where fixed (``pos``: the position of each dof, -1 off G)."""
     d = np.asarray(dofs).ravel()
     return np.where(d >= 0, pos[np.maximum(d, 0)], -1)
 
 
 def _rows_of(pos: np.ndarray, dofs, Xin: np.ndarray) -> np.ndarray:
-    """(2 N, n_in) rows of the interface state ``Xin`` at ``dofs`` (zero where fixed)."""
+    """(dim N, n_in) rows of the interface state ``Xin`` at ``dofs`` (zero where fixed)."""
     g = _positions(pos, dofs)
     out = Xin[np.maximum(g, 0)]
     out[g < 0] = 0.0
@@ -188,6 +189,15 @@ def _solve_flow_first(S: np.ndarray, Dm: np.ndarray, nf: int, flow_cols: int) ->
     elif ng:
         X = scipy.linalg.lu_solve(scipy.linalg.lu_factor(S, check_finite=False), Dm, check_finite=False)
     return X
+
+
+def _mesh_dimension(mesh) -> int:
+    """The gel's dimension: 2 (triangles in the plane) or 3 (tetrahedra); ValueError otherwise."""
+    gdim, tdim = mesh.geometry.dim, mesh.topology.dim
+    if tdim not in (2, 3) or gdim != tdim:
+        raise ValueError(f"mesh must be 2D cells in the plane or 3D cells in space (geometric dimension = "
+                         f"topological dimension, 2 or 3), got geometric {gdim}, topological {tdim}")
+    return tdim
 
 
 def _check_arguments(params, quadrature_degree, newton_rtol, kinematics) -> None:
@@ -220,8 +230,8 @@ class PoroelasticGelSolver(FieldSolver):
             where v_s = 0) and value a number, a vector of numbers, or a
             callable ``x -> values`` as for ``Function.interpolate``.
         tractions: ``[(tags, value)]``: dead loads on the mixture equation,
-            total traction = value (stress unit s); value a (2,) vector or a
-            callable ``x -> (2, n)``; change it with ``set_traction``.
+            total traction = value (stress unit s); value a (dim,) vector or a
+            callable ``x -> (dim, n)``; change it with ``set_traction``.
         body_forces: optional ``(f_w, f_z, f_q)`` UFL expressions (manufactured
             solutions), see ``gel.forms.bulk_residual``.
         name: name of the solver (logs, PETSc option prefixes).
@@ -282,6 +292,7 @@ class PoroelasticGelSolver(FieldSolver):
         super().__init__(mesh)
         self._iterative = linear_solver_choice(solver, name)
         _check_arguments(params, quadrature_degree, newton_rtol, kinematics)
+        self.dim = _mesh_dimension(mesh)
         self.kinematics = kinematics
         self._forms = forms if kinematics == "small" else lagrangian
         self.name = name
@@ -430,8 +441,8 @@ class PoroelasticGelSolver(FieldSolver):
         T = fem.Function(V_vf, name=f"{iname}_traction")
         V = fem.Function(V_vf, name=f"{iname}_velocity")
         self._fluid[iname] = dict(tags=tags, nodes=nodes, scalar=scalar, displacement_nodes=displacement_nodes,
-                                  T=T, V=V, traction=np.zeros((nodes.size, 2)))
-        self._add_interface(iname, nodes, {"traction": 2, "velocity": 2})
+                                  T=T, V=V, traction=np.zeros((nodes.size, self.dim)))
+        self._add_interface(iname, nodes, {"traction": self.dim, "velocity": self.dim})
         rel, u, _ = ufl.split(self.state)
         w, z, _ = ufl.TestFunctions(self.W)
         v_f = rel + self.v_s if self.transient else rel
@@ -450,16 +461,17 @@ class PoroelasticGelSolver(FieldSolver):
         V_u, map_u = self._sub[1]
         nodes = InterfaceNodes(V_u, self.facet_tags, tags, parent_dofs=map_u)
         n_owned = self.W.dofmap.index_map.size_local * self.W.dofmap.index_map_bs
-        dofs = nodes.dofs(parent=True)                   # (n_local, 2) mixed-space dofs of u
+        dofs = nodes.dofs(parent=True)                   # (n_local, dim) mixed-space dofs of u
         keep = np.all(dofs < n_owned, axis=1)            # owned by this rank in the MIXED space
         self._cell[iname] = dict(tags=tags, nodes=nodes, dofs=dofs[keep], rows=nodes.index[keep],
-                                 force=np.zeros((nodes.size, 2)), displacement=np.zeros((nodes.size, 2)))
-        self._add_interface(iname, nodes, {"force": 2, "displacement": 2})
+                                 force=np.zeros((nodes.size, self.dim)),
+                                 displacement=np.zeros((nodes.size, self.dim)))
+        self._add_interface(iname, nodes, {"force": self.dim, "displacement": self.dim})
 
     def set_interface_stiffnesses(self, stiffnesses: typing.Mapping[str, np.ndarray]) -> None:
         """Robin conditions on cell interfaces: on each ``name``, the load becomes ``force + K (u* - u)``.
 
-        ``stiffness`` K: (2N, 2N), rows and columns ``2 i + c`` (node i of
+        ``stiffness`` K: (dim N, dim N), rows and columns ``dim i + c`` (node i of
         ``interface_points(name)``, component c), units of s L0 per unit of
         d L0: the neighbour's Steklov-Poincare operator (the nodal forces it
         needs to hold a nodal displacement).  u* is the input ``displacement``
@@ -476,9 +488,10 @@ class PoroelasticGelSolver(FieldSolver):
                                f"{sorted(self._cell)}")
             nodes = self._cell[name]["nodes"]
             K = np.asarray(stiffness, dtype=float)
-            if K.shape != (2 * nodes.size, 2 * nodes.size):
-                raise ValueError(f"{self.name}: the stiffness of {name!r} must be ({2 * nodes.size}, "
-                                 f"{2 * nodes.size}) for its {nodes.size} nodes, got {K.shape}")
+            n = self.dim * nodes.size
+            if K.shape != (n, n):
+                raise ValueError(f"{self.name}: the stiffness of {name!r} must be ({n}, {n}) for its "
+                                 f"{nodes.size} nodes in {self.dim}D, got {K.shape}")
             if not np.all(np.isfinite(K)):
                 raise ValueError(f"{self.name}: the stiffness of {name!r} contains NaN or Inf")
             self._stiffness[name] = (nodes.global_dofs(self.W, parent=True, bcs=self.bcs).ravel(), 0.5 * (K + K.T))
@@ -502,7 +515,7 @@ class PoroelasticGelSolver(FieldSolver):
         return F
 
     def set_traction(self, index: int, value) -> None:
-        """Change ``tractions[index]``: a (2,) vector or a callable ``x -> (2, n)`` (stress unit s)."""
+        """Change ``tractions[index]``: a (dim,) vector or a callable ``x -> (dim, n)`` (stress unit s)."""
         set_function(self._tractions[index], value, f"{self.name}: tractions[{index}]")
 
     def _build_bcs(self, no_slip, symmetry, dirichlet) -> list:
@@ -533,8 +546,17 @@ class PoroelasticGelSolver(FieldSolver):
         psi = ufl.TestFunction(self.Q2)
         ds_all = quadrature_measure("ds", self.mesh, degree=self.quadrature_degree)
         phi_f = 1 - forms.solid_fraction(u, self.coefficients)
-        self._phi_f_num = fem.form(phi_f * psi * ds_all)
-        self._phi_f_den = fem.form(psi * ds_all)
+        if self.dim == 2:
+            # weights int psi_i ds (h/6 at the vertices, 2h/3 at the midpoint of a P2 edge)
+            self._phi_f_num = fem.form(phi_f * psi * ds_all)
+            self._phi_f_den = fem.form(psi * ds_all)
+        else:
+            # int psi_i dA is zero for the vertex functions of a P2 triangle: weights int psi_i^2 dA,
+            # the diagonal of the boundary mass matrix
+            chi = ufl.TrialFunction(self.Q2)
+            self._phi_f_num = fem.form(phi_f * chi * psi * ds_all)
+            self._phi_f_den = fem.form(chi * psi * ds_all)
+            self._boundary_matrices = {}
         self._p_expr = fem.Expression(p, self.Q2.element.interpolation_points())
         self._p2 = fem.Function(self.Q2)
         # the nodal pressure is read on the fluid interfaces only: interpolate on their cells
@@ -560,8 +582,8 @@ class PoroelasticGelSolver(FieldSolver):
         i = _FIELD_INDEX[field]
         sub = self.W.sub(i)
         if component is not None:
-            if field == "p" or component not in (0, 1):
-                raise ValueError(f"{self.name}: component must be 0 or 1 for w and u "
+            if field == "p" or component not in range(self.dim):
+                raise ValueError(f"{self.name}: component must be in 0..{self.dim - 1} for w and u "
                                  f"(None for p), got {component!r} for {field!r}")
             sub = sub.sub(int(component))
         space, _ = sub.collapse()
@@ -647,25 +669,29 @@ class PoroelasticGelSolver(FieldSolver):
             state.update(self.history.state())
         return state
 
-    def checkpoint_state(self) -> dict[str, np.ndarray]:
+    def _canonical_orders(self) -> None:
+        if not hasattr(self, "_canonical"):
+            self._canonical = MixedCanonical(self.W, FIELDS)
+            self._canonical_u = CanonicalOrder(self._sub[1][0])
+
+    def checkpoint_state(self) -> dict:
         """The state in the partition-independent node order (``femtools.canonical``), same on every rank.
 
         A run restarted on another partition (or rank count) reads it back
         with :meth:`load_checkpoint_state`.
         """
-        if not hasattr(self, "_canonical"):
-            self._canonical = MixedCanonical(self.W, FIELDS)
-            self._canonical_u = CanonicalOrder(self._sub[1][0])
+        self._canonical_orders()
         state = {f"state_{k}": v for k, v in self._canonical.gather(self.state.x.array).items()}
         if self.transient:
             state.update(past_0=self._canonical_u.gather(self.history.past[0].x.array),
                          past_1=self._canonical_u.gather(self.history.past[1].x.array),
                          length=np.array(self.history.length), step=self.history.step_state())
+        state["newton"] = self._newton.checkpoint_state()      # the linear path's starting point
         return state
 
     def load_checkpoint_state(self, state: typing.Mapping[str, np.ndarray]) -> None:
         """Restore a state written by :meth:`checkpoint_state` (any partition)."""
-        self.checkpoint_state()          # builds the canonical orders
+        self._canonical_orders()
         self._canonical.scatter({k: state[f"state_{k}"] for k in FIELDS}, self.state.x.array)
         if self.transient:
             local = {f"past_{k}": self._canonical_u.scatter(state[f"past_{k}"]) for k in (0, 1)}
@@ -677,6 +703,7 @@ class PoroelasticGelSolver(FieldSolver):
                 self._newton.invalidate_jacobian()
                 self._jacobian_cache = None
             self._update_velocity()
+        self._newton.load_checkpoint_state(state.get("newton", {}))
 
     def set_state(self, state: typing.Mapping[str, np.ndarray]) -> None:
         """Restore a state returned by ``get_state`` on this rank (copies from it)."""
@@ -713,7 +740,7 @@ class PoroelasticGelSolver(FieldSolver):
                   self._newton.history)
 
     def _cell_load(self, name: str) -> np.ndarray:
-        """The nodal load on cell interface ``name`` but for -K u: force + K u* (N, 2)."""
+        """The nodal load on cell interface ``name`` but for -K u: force + K u* (N, dim)."""
         d = self._cell[name]
         if name not in self._stiffness:
             return d["force"]
@@ -724,26 +751,27 @@ class PoroelasticGelSolver(FieldSolver):
         """Outputs on interface ``name`` (see the module docstring).
 
         Fluid interfaces:
-            ``mixture_velocity`` (N, 2): phi_f v_f + phi_s v_s at the nodes (units of
+            ``mixture_velocity`` (N, dim): phi_f v_f + phi_s v_s at the nodes (units of
                 V0); its normal part is the volume flux into the fluid (I13).
-            ``superficial_velocity`` (N, 2): phi_f v_f at the nodes,
+            ``superficial_velocity`` (N, dim): phi_f v_f at the nodes,
                 with phi_f the boundary-lumped average of 1 - phi_s0/J around each
-                node (J is discontinuous between cells; the average is rank-independent).
-            ``interstitial_velocity`` (N, 2): nodal v_f = w + v_s.
-            ``traction`` (N, 2): the total traction (phi_f sigma_f + phi_s sigma_s - p I) n
+                node (weights int psi_i ds in 2D, int psi_i^2 ds in 3D; J is discontinuous
+                between cells; the average is rank-independent).
+            ``interstitial_velocity`` (N, dim): nodal v_f = w + v_s.
+            ``traction`` (N, dim): the total traction (phi_f sigma_f + phi_s sigma_s - p I) n
                 the gel applies there, in the stress unit s.  The gel enforces I14,
                 T_total = T, weakly in its mixture equation, so this is the input T
                 (returned as given: the nodal reaction of the mixture equation would
                 only restate the input's consistent load vector).
             ``pressure`` (N, 1): nodal pore pressure p (units of s).
             With ``kinematics="finite"`` also
-            ``normal_flux`` (N, 2): the consistent nodal vector
+            ``normal_flux`` (N, dim): the consistent nodal vector
                 int j (phi_f v_f + phi_s v_s).n (psi_i n) dA of the volume flux
                 through the CURRENT interface (n its normal, j = da/dA; units V0 L0),
                 ``gel.lagrangian.normal_flux_load``;
-            ``displacement`` (N, 2): nodal u (units of d L0), for the fluid's mesh motion.
+            ``displacement`` (N, dim): nodal u (units of d L0), for the fluid's mesh motion.
         Cell interfaces:
-            ``displacement`` (N, 2): nodal u in units of d L0.
+            ``displacement`` (N, dim): nodal u in units of d L0.
         """
         nodes = self.interface_nodes(name)
         x = self.state.x.array
@@ -774,8 +802,8 @@ class PoroelasticGelSolver(FieldSolver):
         """The interface input -> output map linearised at rest, as dense blocks (same on every rank).
 
         Returns ``{((out_interface, out_key), (in_interface, in_key)): J}`` for
-        every pair of interfaces, J of shape ``(2 N_out, 2 N_in)`` with row
-        ``2 i + c`` = node i of ``interface_points(out_interface)``, component
+        every pair of interfaces, J of shape ``(dim N_out, dim N_in)`` with row
+        ``dim i + c`` = node i of ``interface_points(out_interface)``, component
         c, and columns likewise for the input: the derivative of
         ``interface_data(out_interface)[out_key]`` with respect to the input
         array of ``set_interface_data(in_interface, **{in_key: array})``, at
@@ -869,7 +897,7 @@ class PoroelasticGelSolver(FieldSolver):
         # -- collective part: the kept matrix and the data derivatives (on rank 0), the dofs (replicated)
         # the kept matrix (J_reference, Dirichlet rows, interface stiffnesses) on rank 0
         K = self._newton.reference_csr(root=0)
-        sel = {}            # (interface, field) -> (N, 2) global W dofs of w or u, -1 where fixed
+        sel = {}            # (interface, field) -> (N, dim) global W dofs of w or u, -1 where fixed
         for name, d in self._fluid.items():
             sel[name, "w"] = d["nodes"].global_dofs(self.W, parent=True, bcs=self.bcs)
             sel[name, "u"] = d["displacement_nodes"].global_dofs(self.W, parent=True, bcs=self.bcs)
@@ -935,7 +963,7 @@ class PoroelasticGelSolver(FieldSolver):
         return out
 
     def _input_columns(self, sel, gamma, pos, derivative) -> tuple[list, list, int]:
-        """dR_G/d(input), (n_G, 2 N_in) per input, the fluid interfaces' inputs (on the flow rows)
+        """dR_G/d(input), (n_G, dim N_in) per input, the fluid interfaces' inputs (on the flow rows)
         first; returns ``(keys, columns, number of fluid inputs)``."""
         keys, columns = [], []
         if derivative is not None:
@@ -965,7 +993,7 @@ class PoroelasticGelSolver(FieldSolver):
             if flux_rows:
                 B, cmap = derivative
                 flux = B[name, "flux"][flux_rows[name]][:, cmap[name]].toarray()   # (1 - phi_s0) (. n, psi n)
-            n_out = 2 * d["nodes"].size
+            n_out = self.dim * d["nodes"].size
             for key_in in response:
                 Xin = response[key_in]
                 w = _rows_of(pos, sel[name, "w"], Xin)
@@ -986,11 +1014,24 @@ class PoroelasticGelSolver(FieldSolver):
         return out
 
     # -- nodal helpers ---------------------------------------------------
-    def _phi_f_nodal(self, scalar_nodes: InterfaceNodes) -> np.ndarray:
-        num = fem_petsc.assemble_vector(self._phi_f_num)
-        den = fem_petsc.assemble_vector(self._phi_f_den)
-        for vec in (num, den):
+    def _boundary_weights(self, form) -> PETSc.Vec:
+        """int (.) psi_i ds (2D), or the diagonal int (.) psi_i^2 ds of the boundary mass matrix (3D)."""
+        if self.dim == 2:
+            vec = fem_petsc.assemble_vector(form)
             vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+            return vec
+        if form not in self._boundary_matrices:        # one sparsity pattern per form, kept
+            self._boundary_matrices[form] = fem_petsc.create_matrix(form)
+        A = self._boundary_matrices[form]
+        A.zeroEntries()
+        fem_petsc.assemble_matrix(A, form)
+        A.assemble()
+        return A.getDiagonal()
+
+    def _phi_f_nodal(self, scalar_nodes: InterfaceNodes) -> np.ndarray:
+        """phi_f at the interface nodes: its average over the boundary facets around each node,
+        weighted as in :meth:`_boundary_weights` (positive weights; rank-independent)."""
+        num, den = self._boundary_weights(self._phi_f_num), self._boundary_weights(self._phi_f_den)
         a, b = scalar_nodes.from_array(num.array), scalar_nodes.from_array(den.array)
         num.destroy()
         den.destroy()
@@ -1018,7 +1059,7 @@ class PoroelasticGelSolver(FieldSolver):
         """v_f = w + v_s (collapsed P2 vector Function), units of V0."""
         v_f = self._field(0, out, "v_f")
         if self.transient:
-            v_f.x.array.reshape(-1, 2)[:] += self._velocity.x.array.reshape(-1, 2)[self._u_block_of_w]
+            v_f.x.array.reshape(-1, self.dim)[:] += self._velocity.x.array.reshape(-1, self.dim)[self._u_block_of_w]
         return v_f
 
     def displacement(self, out: fem.Function | None = None) -> fem.Function:
@@ -1044,7 +1085,7 @@ class PoroelasticGelSolver(FieldSolver):
         return self._stress_unit * self._forms.network_stress(ufl.split(self.state)[1], self.coefficients)
 
     def network_von_mises(self):
-        """2D von Mises measure of sigma_s in units of mu_s (UFL)."""
+        """Von Mises measure of sigma_s in units of mu_s (UFL; the paper's formula in 2D, the full one in 3D)."""
         return von_mises(self.network_stress())
 
     def total_stress(self):

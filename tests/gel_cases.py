@@ -3,15 +3,42 @@
 * ``line_weights``: the P2 (Simpson) weights of nodes on a straight interface,
   i.e. the consistent nodal load of a unit traction and the quadrature that
   integrates a P2 trace exactly.
+* ``box_mesh``: a tagged box of tetrahedra, the 3D analogue of the rectangle.
 
-The tagged rectangle the gel tests run on is :func:`femtools.mesh.rectangle_mesh`.
+The tagged rectangle the 2D gel tests run on is :func:`femtools.mesh.rectangle_mesh`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["line_weights"]
+from mpi4py import MPI
+
+from dolfinx.mesh import CellType, create_box, locate_entities_boundary, meshtags
+
+__all__ = ["line_weights", "box_mesh", "X0", "X1", "Y0", "Y1", "Z0", "Z1"]
+
+#: facet tags of the faces of :func:`box_mesh`: x = x0, x = x1, y = y0, y = y1, z = z0, z = z1
+X0, X1, Y0, Y1, Z0, Z1 = 1, 2, 3, 4, 5, 6
+
+
+def box_mesh(lower, upper, n, comm=MPI.COMM_WORLD):
+    """Box [lower, upper] with n = (nx, ny, nz) cubes of 6 tetrahedra each; returns ``(mesh, facet_tags)``.
+
+    Facet tags X0 .. Z1 (1 .. 6) on its faces, in the order of :func:`femtools.mesh.rectangle_mesh`'s
+    sides (LEFT = X0, RIGHT = X1, BOTTOM = Y0, TOP = Y1) followed by z = z0, z = z1.
+    """
+    lower, upper = np.asarray(lower, dtype=float), np.asarray(upper, dtype=float)
+    msh = create_box(comm, [lower, upper], list(n), CellType.tetrahedron)
+    tol = 1e-10 * float(np.max(upper - lower))
+    idx, val = [], []
+    for tag, (axis, coord) in enumerate([(a, c) for a in range(3) for c in (lower[a], upper[a])], start=1):
+        facets = locate_entities_boundary(msh, 2, lambda x, a=axis, c=coord: np.isclose(x[a], c, rtol=0.0, atol=tol))
+        idx.append(facets)
+        val.append(np.full(facets.size, tag, dtype=np.int32))
+    idx, val = np.hstack(idx), np.hstack(val)
+    order = np.argsort(idx)
+    return msh, meshtags(msh, 2, idx[order].astype(np.int32), val[order])
 
 
 def line_weights(points: np.ndarray, axis: int) -> np.ndarray:

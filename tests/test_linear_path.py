@@ -150,6 +150,31 @@ def test_linear_path_needs_a_continued_state():
     assert gel.newton.stats["linear_steps"] == 1
 
 
+def test_a_cell_restored_from_a_checkpoint_continues_as_the_one_that_wrote_it():
+    """The checkpoint says whether the unknowns are the last solve's solution: a solver restored from it
+    takes the next solve's linear step where the writer does, to the same bits; without it, the exact path."""
+    msh, ft = meshes.block(1.0, 1.0, 6)
+    tags = tuple(int(t) for t in np.unique(np.hstack(COMM.allgather(np.unique(ft.values)))))
+    make = lambda: NeoHookeanCellSolver(msh, ft, mu=1.0, lmbda=1.5, displacement_scale=1e-12,  # noqa: E731
+                                        interfaces={"boundary": tags}, newton_rtol=1e-13, linear_path=True)
+    writer = make()
+    _stretch(writer, 1.0)
+    writer.solve()
+    state = writer.checkpoint_state()
+    assert state["newton"]["at_solution"]
+    restored, forgetful = make(), make()
+    restored.load_checkpoint_state(state)
+    forgetful.load_checkpoint_state({"u": state["u"]})        # a checkpoint without the flag
+    for cell in (writer, restored, forgetful):
+        _stretch(cell, 1.5)
+        cell.solve()
+    assert writer.stats["linear_steps"] == restored.stats["linear_steps"] == 1, restored.stats
+    assert forgetful.stats["linear_steps"] == 0, forgetful.stats
+    assert np.array_equal(owned(restored.displacement), owned(writer.displacement))
+    writer.displacement.x.array[:] *= 0.5                      # set from outside: not a solution any more
+    assert not writer.checkpoint_state()["newton"]["at_solution"]
+
+
 def test_solves_from_one_state_assemble_its_state_residual_once():
     """Every coupling iteration of a time window solves from the window's checkpoint: F(u0) once.
 

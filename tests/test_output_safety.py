@@ -436,8 +436,8 @@ def test_cli_a_second_run_on_the_same_out_is_refused_naming_the_first(tmp_path):
     out = tmp_path / "run"
     common = ["run", "shear", "--transient", "--mesh-size", "3", "--dt", "1.5e-7", "--t-end", "4.5e-7",
               "--no-figures", "--quiet"]
-    first = paused_gelcell(common + ["--out", str(out)], target="gelcell.coupled.participants.GelParticipant.advance",
-                           call=3)
+    first = paused_gelcell(common + ["--out", str(out)],
+                           target="gelcell.coupled.participants.GelParticipant.begin_window", call=3)
     try:
         for line in first.stdout:
             if line.strip() == "PAUSED":

@@ -102,13 +102,12 @@ def test_interrupted_run_resumes_to_the_same_result(shared_tmp_path, settings, c
 
     Adaptive BDF2: the checkpoint carries the coupling's quasi-Newton columns,
     the extrapolation history, the gel's displacement history and the step
-    controller's state.  The two runs agree to round-off, not bit for bit:
-    under MPI MUMPS schedules its parallel factorisation dynamically, and in
-    serial an optimised BLAS (OpenBLAS, docs/stack.md) rounds differently
-    when the same data sit elsewhere in memory; each coupling iteration's
-    result then moves within the coupling tolerance (measured ~3e-11 in serial,
-    ~2e-11 between two MPI runs).  So the quantities are compared to 1e-9, the
-    bound that the coupling tolerance (1e-10 per window) implies.  Quasi-Newton
+    controller's state.  Under MPI the two runs agree to round-off, not bit
+    for bit: MUMPS schedules its parallel factorisation dynamically, and each
+    coupling iteration's result then moves within the coupling tolerance.  So
+    the quantities are compared to 1e-9, the bound that the coupling tolerance
+    (1e-10 per window) implies; in serial the runs are identical bit for bit
+    (tests/test_resume.py asserts that).  Quasi-Newton
     columns that are not restored show in the first resumed window's iteration
     count (measured: 25 restored, 18 without them); round-off moves it by at
     most one.  The coupling library's own restart (columns, weights,
@@ -167,8 +166,8 @@ def test_sigint_keeps_the_checkpoint_and_resume_finishes(tmp_path):
     assert ref.wait(timeout=600) == 0, ref.stdout.read()
     out = tmp_path / "res"
     # SIGINT arrives at the start of window 4 (window 3 is checkpointed)
-    proc = paused_gelcell(common + ["--out", str(out)], target="gelcell.coupled.participants.GelParticipant.advance",
-                          call=4)
+    proc = paused_gelcell(common + ["--out", str(out)],
+                          target="gelcell.coupled.participants.GelParticipant.begin_window", call=4)
     signal_when_paused(proc, signal.SIGINT)
     assert proc.returncode != 0
     assert (tmp_path / "res.partial" / "checkpoint.npz").is_file()

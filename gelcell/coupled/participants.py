@@ -32,9 +32,9 @@ both are the same time difference of the same nodal displacements: Gamma2
 carries the displacement, and the time derivative follows from it.  The
 participants implement the coupling library's window protocol:
 ``save_state`` / ``load_state`` (the gel's unknowns and displacement history,
-the cell's displacement as Newton's initial guess) and ``advance(t, dt)``
-(the inflow V0 f(t + dt) for the fluid; the history shift and the BDF
-coefficients for the gel).
+the cell's displacement as Newton's initial guess) and ``begin_window(t, dt)``
+(once per window: the inflow V0 f(t + dt) for the fluid; the history shift
+and the BDF coefficients for the gel).
 """
 
 from __future__ import annotations
@@ -45,7 +45,6 @@ import numpy as np
 
 import coupling as cp
 from cell import NeoHookeanCellSolver
-from femtools.canonical import CanonicalOrder
 from femtools.timestepping import WindowClock
 from fluid import StokesSolver
 from gel import PoroelasticGelSolver
@@ -86,7 +85,7 @@ class FluidParticipant(cp.Participant):
     def load_state(self, state) -> None:
         pass
 
-    def advance(self, t: float, dt: float) -> None:
+    def begin_window(self, t: float, dt: float) -> None:
         if self.inflow is not None:
             self.solver.scale_boundary_velocity(self.inflow(t + dt))
 
@@ -168,11 +167,11 @@ class MovingFluidParticipant(FluidParticipant):
 class GelParticipant(cp.Participant):
     """The gel solver seen by the coupling: I14, I15, I17 on Gamma1/Gamma3, Neumann on Gamma2.
 
-    Time windows: ``advance(t, dt)`` makes the state at t the newest past
-    state (once per window: the history carries the time it belongs to, so
-    calling it again after ``load_state`` is idempotent) and sets the time
-    step: backward Euler in the first window and for ``time_scheme = "be"``,
-    variable-step BDF2 afterwards for ``"bdf2"``.
+    Time windows: ``begin_window(t, dt)`` makes the state at t the newest
+    past state and sets the time step: backward Euler in the first window and
+    for ``time_scheme = "be"``, variable-step BDF2 afterwards for ``"bdf2"``.
+    The history carries the times it belongs to (``WindowClock``), so that a
+    window retaken after a restore pushes the state at t once.
     """
 
     name = "gel"
@@ -202,7 +201,7 @@ class GelParticipant(cp.Participant):
         self.solver.load_checkpoint_state(state)
         self.clock.load(state["history_times"])
 
-    def advance(self, t: float, dt: float) -> None:
+    def begin_window(self, t: float, dt: float) -> None:
         scheme, dt_previous = self.clock.enter(t, dt, self.solver.push_history)
         self.solver.set_time_step(dt, scheme, dt_previous)
 
@@ -282,16 +281,10 @@ class CellParticipant(cp.Participant):
         self.solver.displacement.x.array[:] = state["u"]
 
     def checkpoint_state(self):
-        if not hasattr(self, "_canonical"):
-            self._canonical = CanonicalOrder(self.solver.displacement.function_space)
-        return {"u": self._canonical.gather(self.solver.displacement.x.array)}
+        return self.solver.checkpoint_state()
 
     def load_checkpoint_state(self, state) -> None:
-        self.checkpoint_state()
-        self.solver.displacement.x.array[:] = self._canonical.scatter(state["u"])
-
-    def advance(self, t: float, dt: float) -> None:
-        pass
+        self.solver.load_checkpoint_state(state)
 
     def jacobian(self):
         """d(force, cell_displacement)/d(displacement): the cell's Steklov-Poincare operator at rest."""

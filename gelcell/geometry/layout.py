@@ -16,7 +16,8 @@ import typing
 
 import numpy as np
 
-__all__ = ["DeviceBoundaries", "DeviceLayout", "CellSpec", "ParabolicInflow", "SegmentInflow"]
+__all__ = ["DeviceBoundaries", "DeviceLayout", "CellSpec", "ParabolicInflow", "SegmentInflow",
+           "duct_poiseuille", "duct_poiseuille_peak", "plane_poiseuille"]
 
 
 @dataclasses.dataclass
@@ -62,6 +63,98 @@ class SegmentInflow:
         s = ((x[0] - self.a[0]) * t[0] + (x[1] - self.a[1]) * t[1]) / float(t @ t)
         shape = 4.0 * s * (1.0 - s) if self.profile == "parabolic" else np.ones_like(s)
         return np.vstack((self.speed * self.normal[0] * shape, self.speed * self.normal[1] * shape))
+
+
+def _positive(name: str, value) -> float:
+    value = float(value)
+    if not (np.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be finite and > 0, got {value}")
+    return value
+
+
+def plane_poiseuille(z, height: float, mean: float) -> np.ndarray:
+    """Plane Poiseuille flow between a floor z = 0 and a lid z = H with mean speed ``mean`` (V_m):
+
+        u(z) = 6 V_m z (H - z) / H^2,      max u = u(H/2) = 3 V_m / 2,
+
+    so the flux per unit width is V_m H (model.md section 10, the normal device's inflow).
+    """
+    H = _positive("height", height)
+    z = np.asarray(z, dtype=float)
+    return 6.0 * float(mean) * z * (H - z) / H**2
+
+
+def _duct_series(a, b, A, B) -> np.ndarray:
+    """s(a, b) solving -(s_aa + s_bb) = 1 on (0, A) x (0, B), s = 0 on the boundary, as
+
+        s = b (B - b) / 2
+            - (4 B^2 / pi^3) sum_{n odd} n^-3 sin(n pi b / B) cosh(n pi (a - A/2) / B) / cosh(n pi A / (2 B)).
+
+    Term n is bounded by (8 B^2 / pi^3) n^-3 exp(-n pi delta / B), delta = min(a, A - a) the distance to
+    the walls a = 0, A; the sum stops when that bound, summed over the rest, is below 1e-15 B^2, or at
+    n = 20001 (tail < 2e-10 B^2; reached only within about B / 5000 of a wall a = 0, A).
+    """
+    delta = np.minimum(a, A - a)
+    s = np.where(delta > 0, 0.5 * b * (B - b), 0.0)       # s = 0 on the walls a = 0, A
+    active = delta > 0
+    n = 1
+    while np.any(active) and n <= 20001:
+        k = n * np.pi / B
+        # cosh(k (a - A/2)) / cosh(k A/2) without overflow (|a - A/2| <= A/2)
+        ratio = np.exp(-k * delta[active]) * (1 + np.exp(-2 * k * np.abs(a[active] - A / 2))) / (1 + np.exp(-k * A))
+        s[active] -= 4 * B**2 / (np.pi**3 * n**3) * np.sin(k * b[active]) * ratio
+        n += 2
+        d = delta[active]
+        tail = 8 * B**2 / (np.pi**3 * n**3) * np.exp(-n * np.pi * d / B) / (-np.expm1(-2 * np.pi * d / B) + 1e-300)
+        active[active] = tail > 1e-15 * B**2
+    return s
+
+
+def _duct_shape(y, z, W: float, H: float) -> np.ndarray:
+    """s with -(s_yy + s_zz) = 1 in (0, W) x (0, H), s = 0 on the walls: the series in the direction in
+    which the point is further from the walls (geometric convergence everywhere but at the corners)."""
+    y, z = np.broadcast_arrays(np.asarray(y, dtype=float), np.asarray(z, dtype=float))
+    y, z = np.clip(y.ravel(), 0.0, W), np.clip(z.ravel(), 0.0, H)
+    s = np.zeros(y.shape)
+    in_y = np.minimum(y, W - y) / H >= np.minimum(z, H - z) / W     # cosh along y, sine series along z
+    s[in_y] = _duct_series(y[in_y], z[in_y], W, H)
+    s[~in_y] = _duct_series(z[~in_y], y[~in_y], H, W)
+    return s
+
+
+def duct_poiseuille_peak(width: float, height: float, gradient: float, viscosity: float) -> float:
+    """The centre-line speed G s_c / mu of fully developed flow in a W x H duct driven by dP/dx = -G.
+
+    s_c = s(W/2, H/2) of the series of :func:`duct_poiseuille`; for W >> H it tends to H^2/8
+    (plane Poiseuille).
+    """
+    W, H = _positive("width", width), _positive("height", height)
+    mu = _positive("viscosity", viscosity)
+    return float(gradient) / mu * float(_duct_shape(W / 2, H / 2, W, H)[0])
+
+
+def duct_poiseuille(y, z, width: float, height: float, peak: float) -> np.ndarray:
+    """Fully developed Poiseuille flow in a rectangular duct 0 < y < W, 0 < z < H, no slip on its four walls.
+
+    The axial speed solves -mu (u_yy + u_zz) = G (G = -dP/dx), u = 0 on the walls.  Its series
+    (a sine series in z, each term's y dependence solved exactly):
+
+        u = (G / mu) s(y, z),
+        s = z (H - z) / 2
+            - (4 H^2 / pi^3) sum_{n odd} n^-3 sin(n pi z / H) cosh(n pi (y - W/2) / H) / cosh(n pi W / (2 H)),
+
+    scaled here so that its maximum, on the centre line (W/2, H/2), is ``peak`` (V0):
+    u = V0 s(y, z) / s(W/2, H/2).  Points closer to the walls y = 0, W than (relatively) to
+    z = 0, H use the same series with the roles of (y, W) and (z, H) swapped, which converges
+    geometrically there.  ``y``, ``z``: arrays (broadcast together) of positions in the duct's
+    cross-section, measured from one corner; returns the speeds, of their broadcast shape.  Points
+    outside the cross-section take the value of the nearest point of it (finite everywhere, as
+    ``Function.interpolate`` evaluates a boundary profile at every node of the mesh).
+    """
+    W, H = _positive("width", width), _positive("height", height)
+    shape = np.broadcast(np.asarray(y), np.asarray(z)).shape
+    s = _duct_shape(y, z, W, H)
+    return (float(peak) / float(_duct_shape(W / 2, H / 2, W, H)[0]) * s).reshape(shape)
 
 
 @dataclasses.dataclass

@@ -41,10 +41,14 @@ def test_windows_match_the_monolithic_solution(scheme_name, acceleration):
 
 
 class NoRestore(cp.toys.LinearOdeParticipant):
-    """A participant whose load_state forgets to restore (a classic adapter bug)."""
+    """A participant of the earlier protocol (``advance`` before every solve, moving ``u_n``) whose
+    load_state forgets to restore (a classic adapter bug)."""
 
     def load_state(self, state):
         pass
+
+    def advance(self, t, dt):
+        self.u_old, self.t_new, self.dt = self.u.copy(), t + dt, dt
 
 
 class WindowAwareOde(cp.toys.LinearOdeParticipant):
