@@ -153,6 +153,7 @@ class CaseParameters:
             problems += self._cell_size_problems()
             raise_problems(problems)
             problems += self.geometry.placement_problems(self.element_sizes()["h_cell"])
+            problems += self.geometry.height_problems(self.element_sizes()["h_cell"])
         raise_problems(problems)
 
     def _cell_size_problems(self) -> list[str]:
