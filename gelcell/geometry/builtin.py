@@ -17,7 +17,7 @@ from gelcell.case import CaseParameters
 from gelcell.geometry.layout import CellSpec, DeviceBoundaries, DeviceLayout, ParabolicInflow
 from gelcell.geometry.tags import REGIONS, Tag, cell_region_tag, gamma2_name, gamma2_tag
 
-__all__ = ["builtin_cells", "builtin_layout", "device_boundaries", "closed_form_measures"]
+__all__ = ["builtin_cells", "builtin_layout", "device_boundaries", "closed_form_measures", "closed_form_measures_3d"]
 
 
 # --------------------------------------------------------------------------- closed forms
@@ -29,6 +29,8 @@ def closed_form_measures(params: CaseParameters) -> dict:
     of the tagged facets of that region's own mesh.  Several cells: their
     areas and Gamma2 lengths are summed under Tag.CELL and Tag.GAMMA2.
     """
+    if getattr(params.geometry, "dimension", 2) == 3:
+        return closed_form_measures_3d(params)
     cells = params.geometry.cell_list() if params.with_cell else []
     out = _shear_measures(params.geometry, cells) if params.case == "shear" else \
         _normal_measures(params.geometry, cells)
@@ -81,6 +83,58 @@ def _whole_measures(regions: dict) -> dict:
             shared = tag in (Tag.GAMMA1, Tag.GAMMA2, Tag.GAMMA3)
             length[tag] = value if shared else length.get(tag, 0.0) + value
     return {"area": area, "length": length}
+
+
+def closed_form_measures_3d(params: CaseParameters) -> dict:
+    """Exact volumes and surface areas of the 3D device of ``params`` (model.md section 10).
+
+    Returns ``{"whole": {"volume": {Tag: v}, "area": {Tag: a}}, "fluid": {"volume": v,
+    "area": {Tag: a}}, "gel": ..., "cell": ...}``.  The half height h = H/2
+    extrudes the planar device: a planar area A gives the volume A h and the
+    floor and mid-plane areas A, a planar length l the wall area l h.  A
+    cell of radius r is a half sphere (volume 2/3 π r^3, Γ2 2 π r^2, flat
+    face π r^2 on z = h), a quarter sphere on the normal device's symmetry
+    plane y = height (half of each, plus a half disk π r^2 / 2 on that plane).
+    """
+    g, h = params.geometry, 0.5 * params.geometry.chip_height
+    cells = params.geometry.cell_list() if params.with_cell else []
+    share = [0.5 if params.case == "normal" and g.on_symmetry_line(y) else 1.0 for _, y, _ in cells]
+    r = [0.5 * d for _, _, d in cells]
+    cell = {"volume": sum(s * 2 / 3 * math.pi * q ** 3 for s, q in zip(share, r)),
+            "area": {Tag.GAMMA2: sum(s * 2 * math.pi * q ** 2 for s, q in zip(share, r)),
+                     Tag.SYMMETRY_MID: sum(s * math.pi * q ** 2 for s, q in zip(share, r))}}
+    cut = sum(0.5 * math.pi * q ** 2 for s, q in zip(share, r) if s < 1.0)
+    if cut:
+        cell["area"][Tag.SYMMETRY_TOP] = cut
+    flat = _shear_measures(g, []) if params.case == "shear" else _normal_measures(g, [])
+    out = {"cell": cell}
+    for name in ("fluid", "gel"):
+        a2 = flat[name]["area"]
+        area = {t: l * h for t, l in flat[name]["length"].items()}
+        area.update({Tag.FLOOR: a2, Tag.SYMMETRY_MID: a2})
+        out[name] = {"volume": a2 * h, "area": area}
+    gel = out["gel"]
+    gel["volume"] -= cell["volume"]
+    gel["area"][Tag.SYMMETRY_MID] -= cell["area"][Tag.SYMMETRY_MID]
+    if cut:
+        gel["area"][Tag.SYMMETRY_TOP] -= cut
+    if cells:
+        gel["area"][Tag.GAMMA2] = cell["area"][Tag.GAMMA2]
+    else:
+        del out["cell"]
+    out["whole"] = _whole_measures_3d(out)
+    return out
+
+
+def _whole_measures_3d(regions: dict) -> dict:
+    """The whole 3D device's volumes per region tag and areas per facet tag (interfaces counted once)."""
+    volume = {REGIONS[k]: v["volume"] for k, v in regions.items()}
+    area: dict = {}
+    for v in regions.values():
+        for tag, value in v["area"].items():
+            shared = tag in (Tag.GAMMA1, Tag.GAMMA2, Tag.GAMMA3)
+            area[tag] = value if shared else area.get(tag, 0.0) + value
+    return {"volume": volume, "area": area}
 
 
 def builtin_cells(params) -> list[CellSpec]:
