@@ -115,6 +115,13 @@ class _Cells:
                              f"(chip_height); a planar cell is [x, y, d]")
         return p
 
+    def to_input_dict(self) -> dict:
+        """The ``[geometry]`` table; a planar device's has no ``chip_height`` and ``walls`` (as before them)."""
+        out = dataclasses.asdict(self)
+        if self.chip_height is None:
+            del out["chip_height"], out["walls"]
+        return out
+
     def height_problems(self, h_cell: float) -> list[str]:
         """3D: each cell centred at mid-height, its sphere a gap ≥ ``h_cell`` off the floor and lid."""
         if self.chip_height is None:

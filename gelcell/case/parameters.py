@@ -387,7 +387,7 @@ class CaseParameters:
                 "physics": dataclasses.asdict(self.physics),
                 "dimensional": dataclasses.asdict(self.dimensional),
                 "cell": dataclasses.asdict(self.cell),
-                "geometry": g.to_input_dict() if isinstance(g, FileGeometry) else dataclasses.asdict(g),
+                "geometry": g.to_input_dict(),
                 "mesh": dataclasses.asdict(self.mesh)}
 
     def to_dict(self) -> dict:
