@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import re
 
+import numpy as np
 import pytest
 
 from gelcell.case import CaseParameters
@@ -139,3 +140,44 @@ def test_3d_device_not_runnable_yet():
     from gelcell.post.validity import check_case
     with pytest.raises(ParameterError, match=r"'geometry.chip_height' = 0.4: 3D devices are not runnable yet"):
         check_case(_case("normal", 1.0))
+
+
+# --------------------------------------------------------------------------- conditions of the 3D devices
+def _conditioned(b) -> dict[str, set[str]]:
+    """Per region, the tag names that carry a condition or an interface (the outlet: zero traction)."""
+    names = lambda tags: {tag_name(t) for t in tags}                                  # noqa: E731
+    fluid = {t for tags, _ in b.fluid_velocity for t in tags} | {t for tags, _, _ in b.fluid_component for t in tags}
+    return {"fluid": names(fluid | {int(Tag.OUTLET)} | set(b.fluid_interfaces.values())),
+            "gel": names(set(b.gel_no_slip) | {t for tags, _ in b.gel_symmetry for t in tags}
+                         | set(b.fluid_interfaces.values()) | set(b.cell_interfaces.values())),
+            "cell": names({t for tags, _ in b.cell_symmetry for t in tags} | set(b.cell_interfaces.values()))}
+
+
+@pytest.mark.parametrize("label", list(CASES))
+def test_every_tag_of_the_mesh_has_its_condition(measured, label):
+    """The conditions of device_boundaries_3d name exactly the tags each region's mesh carries."""
+    from gelcell.geometry import device_layout
+    params = CASES[label](SIZES[0])
+    b = device_layout(params).boundaries
+    assert b.dim == 3 and all(comps == (0, 1, 2) for _, comps in b.fluid_dirichlet_tags()[:len(b.fluid_velocity)])
+    for name, tags in _conditioned(b).items():
+        if name in measured[label, SIZES[0]]["regions"]:
+            assert set(measured[label, SIZES[0]]["regions"][name]["area"]) == tags, (label, name)
+    floor_fixed = int(Tag.FLOOR) in b.gel_no_slip
+    assert floor_fixed == (params.geometry.walls == "noslip"), label
+    assert any(int(Tag.SYMMETRY_MID) in tags and c == 2 for tags, c in b.gel_symmetry), label
+
+
+def test_inflow_profiles_of_the_chip():
+    """Shear: the duct series, 1 on the centre line, 0 on floor and walls; normal: mean 1 over the height."""
+    from gelcell.geometry.layout import ChipInflow
+    W, H = 0.2, 0.4
+    duct = ChipInflow("duct", W, H)
+    v = duct(np.array([[0.0, 0.0, 0.0], [W / 2, 0.0, W / 2], [H / 2, H / 2, 0.0]]))
+    assert v[0] == pytest.approx([1.0, 0.0, 0.0], abs=1e-12) and not v[1:].any()
+    z, w = np.polynomial.legendre.leggauss(3)                      # exact for the quadratic profile
+    z = 0.5 * H * (z + 1)
+    plane = ChipInflow("plane", 0.5, H)(np.vstack((np.zeros(3), np.full(3, 0.3), z)))[0]
+    assert 0.5 * float(w @ plane) == pytest.approx(1.0, rel=1e-14)      # flux per unit height = 2D inflow
+    slab = ChipInflow("parabolic", W, H)(np.array([[0.0, 0.0], [W / 2, W / 2], [0.0, H / 2]]))[0]
+    assert slab == pytest.approx([1.0, 1.0], rel=1e-15)                 # independent of z
