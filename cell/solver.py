@@ -46,6 +46,7 @@ from cell import forms
 from femtools.canonical import CanonicalOrder
 from femtools.functions import quadrature_measure, set_function, von_mises
 from femtools.interface import InterfaceNodes
+from femtools.krylov import elasticity_solver, linear_solver_choice
 from femtools.linalg import NewtonSolver, assemble_residual_vector, gather_csr, jacobian_at_rest, schur_complement
 from femtools.mesh import as_tags, tagged_facets
 from femtools.solver import FieldSolver
@@ -98,7 +99,10 @@ class NeoHookeanCellSolver(FieldSolver):
         name: name used in messages and PETSc prefixes.
         quadrature_degree: degree of every dx/ds of the forms (the monolithic
             reference must use the same).
-        petsc_options: options of the direct solver (default MUMPS; LDL^T for a symmetric Jacobian, else LU).
+        petsc_options: options of the direct solver (default MUMPS; LDL^T for a symmetric Jacobian, else LU),
+            or with ``solver="iterative"`` of the Krylov solver (``femtools.krylov.elasticity_solver``).
+        solver: "direct" (MUMPS) or "iterative" (CG with GAMG and the rigid-body near-null space;
+            GMRES if the Jacobian is not symmetric).
         newton_rtol: relative incremental tolerance |du| <= rtol |u|.
         reuse: Jacobian reuse of the Newton solver, "adaptive" or "never".
         rigid_mode_rtol: with ``remove_rigid_modes``, the largest resultant
@@ -157,7 +161,7 @@ class NeoHookeanCellSolver(FieldSolver):
                  tractions: typing.Sequence = (), remove_rigid_modes: bool = False,
                  name: str = "cell", quadrature_degree: int = 4, petsc_options: dict | None = None,
                  newton_rtol: float = 1e-11, reuse: str = "adaptive", rigid_mode_rtol: float = 1e-6,
-                 linear_path: bool = False):
+                 linear_path: bool = False, solver: str = "direct"):
         super().__init__(mesh)
         t0 = time.perf_counter()
         self.name = str(name)
@@ -188,9 +192,12 @@ class NeoHookeanCellSolver(FieldSolver):
         self.bcs = bcs
         # kept Jacobian: the linearisation at rest (the same matrix whenever assembled; exact at large strain)
         # the state part is the internal force: its assembly at the solution is also the "force" output
+        iterative = linear_solver_choice(solver, self.name)
         self._newton = NewtonSolver(internal, self.u, bcs, name=self.name, rtol=newton_rtol, reuse=reuse,
                                     petsc_options=petsc_options,
-                                    J_reference=jacobian_at_rest(internal + F_data, self.u), F_data=F_data)
+                                    J_reference=jacobian_at_rest(internal + F_data, self.u), F_data=F_data,
+                                    linear_solver=elasticity_solver(self.V, self.name, petsc_options)
+                                    if iterative else None)
         self._internal_form = self._newton.F
         self.linear_path = bool(linear_path)
         self._compiled: dict[str, object] = {}

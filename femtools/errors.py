@@ -2,12 +2,13 @@
 
 * :class:`OutputError`: an output directory refused or not writable (``femtools.io``);
 * :class:`SingularSystemError`: a factorised operator has null pivots (``femtools.linalg``);
-* :class:`NewtonError`: Newton's method failed (``femtools.linalg``).
+* :class:`NewtonError`: Newton's method failed (``femtools.linalg``);
+* :class:`LinearSolveError`: an iterative linear solve did not converge (``femtools.krylov``).
 """
 
 from __future__ import annotations
 
-__all__ = ["OutputError", "SingularSystemError", "NewtonError"]
+__all__ = ["OutputError", "SingularSystemError", "NewtonError", "LinearSolveError"]
 
 
 class OutputError(Exception):
@@ -46,3 +47,13 @@ class NewtonError(RuntimeError):
         self.solver, self.reason, self.history = solver, reason, list(history)
         super().__init__(f"{solver}: Newton's method failed: {reason}; relative corrections "
                          f"{['%.2e' % h for h in self.history]}")
+
+
+class LinearSolveError(RuntimeError):
+    """A Krylov solve failed: ``solver`` names the field, ``reason`` PETSc's converged reason
+    (e.g. ``DIVERGED_ITS``), ``iterations`` the iterations it took."""
+
+    def __init__(self, solver: str, reason: str, iterations: int):
+        self.solver, self.reason, self.iterations = solver, str(reason), int(iterations)
+        super().__init__(f"{solver}: the iterative linear solve failed: PETSc KSP reason {self.reason} "
+                         f"after {self.iterations} iterations")

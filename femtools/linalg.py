@@ -400,10 +400,13 @@ class LinearSolver:
     ``solve()`` re-assembles only ``L`` (and the lifting of the Dirichlet
     values when they changed), so changing coefficients of ``L`` or Dirichlet
     data between calls is cheap.  Call ``update_operator()`` if ``a`` changed.
+    ``linear_solver``: an object of the :class:`DirectSolver` interface (e.g. a
+    ``femtools.krylov.KrylovSolver``) used instead of MUMPS.
     """
 
     def __init__(self, a: ufl.Form, L: ufl.Form, u: fem.Function, bcs: list, name: str = "linear",
-                 petsc_options: dict | None = None, form_compiler_params: dict | None = None):
+                 petsc_options: dict | None = None, form_compiler_params: dict | None = None,
+                 linear_solver=None):
         fcp = form_compiler_params or {}
         self.a = fem.form(a, form_compiler_params=fcp)
         self.L = fem.form(L, form_compiler_params=fcp)
@@ -414,7 +417,8 @@ class LinearSolver:
         self.b = fem_petsc.create_vector(self.L)
         self._lift = fem_petsc.create_vector(self.L)      # - A g of the Dirichlet values g (owned entries)
         self._lift_key: list[np.ndarray] | None = None
-        self.solver = DirectSolver(comm, name, petsc_options)
+        # a solver of the DirectSolver interface (e.g. femtools.krylov.KrylovSolver) replaces MUMPS
+        self.solver = DirectSolver(comm, name, petsc_options) if linear_solver is None else linear_solver
         self.ksp = self.solver.ksp
         self._operator_ready = False
 
@@ -492,6 +496,10 @@ class NewtonSolver:
     dofs: the others have no equation (e.g. a field outside its subdomain in
     the monolithic system) and keep their value.
 
+    ``linear_solver`` (optional): an object of the :class:`DirectSolver` interface
+    (``set_operator``, ``factorize``, ``solve``), e.g. a ``femtools.krylov.KrylovSolver``,
+    that solves every Jacobian instead of MUMPS (``reference_blocks`` is then unused).
+
     ``reference_blocks`` (optional): two arrays of local dofs splitting the
     unknowns.  If ``J_reference`` is block lower-triangular in that split
     (checked whenever it is assembled: the first block's equations do not
@@ -549,7 +557,7 @@ class NewtonSolver:
                  active_dofs: np.ndarray | None = None, J_reference: ufl.Form | None = None,
                  F_data: ufl.Form | None = None, linear_tolerance: float = 1e-3,
                  reference_blocks: typing.Sequence[np.ndarray] | None = None,
-                 data_coefficients: typing.Sequence[fem.Function] = ()):
+                 data_coefficients: typing.Sequence[fem.Function] = (), linear_solver=None):
         if reuse not in ("never", "adaptive"):
             raise ValueError(f"reuse must be 'never' or 'adaptive', got {reuse!r}")
         if not (0.0 < linear_tolerance < 1.0):
@@ -579,10 +587,10 @@ class NewtonSolver:
         self._A_active = None
         if active_dofs is not None:
             self._active = self._owned_index_set(active_dofs)
-        self.solver = DirectSolver(comm, name, petsc_options)
+        self.solver = DirectSolver(comm, name, petsc_options) if linear_solver is None else linear_solver
         self.ksp = self.solver.ksp
         self._blocks = None
-        if reference_blocks is not None and self.J_reference is not None:
+        if reference_blocks is not None and self.J_reference is not None and linear_solver is None:
             if active_dofs is not None:
                 raise ValueError(f"{name}: reference_blocks cannot be combined with active_dofs")
             self._blocks = self._block_solver(reference_blocks, petsc_options)

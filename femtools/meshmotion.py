@@ -36,6 +36,7 @@ from dolfinx import fem, mesh as dmesh
 
 from femtools.functions import quadrature_measure
 from femtools.interface import InterfaceNodes
+from femtools.krylov import elasticity_solver, linear_solver_choice
 from femtools.linalg import LinearSolver
 from femtools.mesh import as_tags, settle_coordinate_element, tagged_facets
 
@@ -59,7 +60,9 @@ class MeshMotion:
         sliding: ``[(tags, component)]``: u_m[component] = 0 (symmetry lines or planes).
         name: solver name (PETSc prefixes).
         quadrature_degree: of the integral (the monolithic reference must use the same).
-        petsc_options: options of its direct solver (``femtools.linalg.DirectSolver``).
+        petsc_options: options of its direct solver (``femtools.linalg.DirectSolver``), or of its
+            Krylov solver with ``solver="iterative"`` (CG with GAMG, ``femtools.krylov.elasticity_solver``).
+        solver: "direct" or "iterative".
 
     Every other exterior facet is held (u_m = 0).  Where boundaries meet,
     the sliding and held conditions win over the data.
@@ -67,7 +70,7 @@ class MeshMotion:
 
     def __init__(self, V: fem.FunctionSpace, facet_tags, moving: typing.Mapping[str, typing.Any],
                  sliding: typing.Sequence = (), name: str = "mesh_motion", quadrature_degree: int = 4,
-                 petsc_options: dict | None = None):
+                 petsc_options: dict | None = None, solver: str = "direct"):
         msh = settle_coordinate_element(V.mesh)      # before any form (femtools.mesh)
         fdim = msh.topology.dim - 1
         msh.topology.create_connectivity(fdim, msh.topology.dim)
@@ -100,8 +103,10 @@ class MeshMotion:
         u, z = ufl.TrialFunction(V), ufl.TestFunction(V)
         dx = quadrature_measure("dx", msh, degree=quadrature_degree)
         zero = fem.Constant(msh, PETSc.ScalarType((0.0,) * gdim))
+        krylov = elasticity_solver(V, name, petsc_options) if linear_solver_choice(solver, name) else None
         self.solver = LinearSolver(harmonic_residual(u, z, dx), ufl.inner(zero, z) * dx,
-                                   self.displacement, bcs, name=name, petsc_options=petsc_options)
+                                   self.displacement, bcs, name=name, petsc_options=petsc_options,
+                                   linear_solver=krylov)
         self.current = True     # the displacement is the extension of the current data
 
     def set_displacement(self, key: str, values: np.ndarray) -> None:

@@ -154,7 +154,8 @@ class MovingStokesSolver(StokesSolver):
         self.motion = MeshMotion(self.mesh_space, facet_tags, moving, sliding,
                                  name=f"{kwargs.get('name', 'fluid')}_mesh_motion",
                                  quadrature_degree=kwargs.get("quadrature_degree", 4),
-                                 petsc_options=kwargs.get("petsc_options"))
+                                 petsc_options=kwargs.get("petsc_options"),
+                                 solver=kwargs.get("solver", "direct"))
         self.mesh_displacement = self.motion.displacement
         self._mesh_boundaries = set(mesh_boundaries or {})
         self._flux = {}
@@ -190,11 +191,12 @@ class MovingStokesSolver(StokesSolver):
 
     def _build_solver(self, F, trial, v, bcs, petsc_options):
         F = ufl.replace(F, {trial: self.w})
+        J_reference = jacobian_at_rest(F, self.w, [self.mesh_displacement])
         # every coefficient but the unknowns is data: the mesh position and the interface data
         self.newton = NewtonSolver(F, self.w, bcs, name=self.name, rtol=self._newton_rtol, reuse="adaptive",
-                                   petsc_options=petsc_options,
-                                   J_reference=jacobian_at_rest(F, self.w, [self.mesh_displacement]),
-                                   data_coefficients=[c for c in F.coefficients() if c is not self.w])
+                                   petsc_options=petsc_options, J_reference=J_reference,
+                                   data_coefficients=[c for c in F.coefficients() if c is not self.w],
+                                   linear_solver=self._krylov_solver(J_reference, bcs, petsc_options))
         return _NewtonAsLinear(self.newton, self._linear_path)
 
     # -- linearised interface map ----------------------------------------------------

@@ -61,6 +61,7 @@ from dolfinx.fem import petsc as fem_petsc
 from femtools.functions import quadrature_measure, set_function
 from femtools.interface import InterfaceMass, InterfaceNodes, global_dofs
 from femtools.mesh import as_tags, connected_components, tagged_facets
+from femtools.krylov import linear_solver_choice, stokes_solver
 from femtools.linalg import LinearSolver, SolverStats, gather_csr, schur_complement
 from femtools.solver import FieldSolver
 from fluid import forms
@@ -168,7 +169,10 @@ class StokesSolver(FieldSolver):
         name: solver name (PETSc prefixes, messages).
         quadrature_degree: quadrature degree of every cell and facet integral
             (the monolithic reference must use the same).
-        petsc_options: extra PETSc options of the Stokes solve.
+        petsc_options: extra PETSc options of the Stokes solve (of the Krylov solver with
+            ``solver="iterative"``, e.g. ``fieldsplit_u_pc_type``).
+        solver: "direct" (MUMPS LDL^T) or "iterative" (MINRES with a block preconditioner,
+            ``femtools.krylov.stokes_solver``).
         pressure_pin: optional point ``(x, y[, z])``: P = 0 at the pressure node
             nearest to it.  Required when the normal velocity is prescribed
             on the whole boundary (P is then defined only up to a constant;
@@ -208,10 +212,11 @@ class StokesSolver(FieldSolver):
                  name: str = "fluid",
                  quadrature_degree: int = 4,
                  petsc_options: dict | None = None,
-                 pressure_pin: typing.Sequence[float] | None = None):
+                 pressure_pin: typing.Sequence[float] | None = None, solver: str = "direct"):
         super().__init__(mesh)
         t0 = time.perf_counter()
         self.name = name
+        self._iterative = linear_solver_choice(solver, name)
         viscosity = float(viscosity)
         interfaces = self._check_arguments(mesh, viscosity, quadrature_degree, interfaces)
         self.mesh, self.facet_tags = mesh, facet_tags
@@ -261,7 +266,26 @@ class StokesSolver(FieldSolver):
         # keep L a non-empty form when there is neither a body force nor Robin data
         zero = fem.Constant(self.mesh, PETSc.ScalarType((0.0,) * self.gdim))
         L = L + ufl.inner(zero, v) * self.dx
-        return LinearSolver(a, L, self.w, bcs, name=self.name, petsc_options=petsc_options)
+        return LinearSolver(a, L, self.w, bcs, name=self.name, petsc_options=petsc_options,
+                            linear_solver=self._krylov_solver(a, bcs, petsc_options))
+
+    def _krylov_solver(self, a, bcs, petsc_options):
+        """With ``solver="iterative"``: MINRES preconditioned by diag(AMG(a_uu), M_p / mu); else None."""
+        if not self._iterative:
+            return None
+        p, q = ufl.TrialFunctions(self.W)[1], ufl.TestFunctions(self.W)[1]
+        # additive fieldsplit reads only the diagonal blocks: a's velocity block, the pressure mass
+        return stokes_solver(self.W, self.name, fem.form(a + p * q / self.mu * self.dx), bcs, petsc_options,
+                             pinned=self._pinned_enclosed())
+
+    def _pinned_enclosed(self) -> bool:
+        """Whether the normal velocity is prescribed on the whole boundary (then the pressure is pinned:
+        without a pin the constructor raised)."""
+        try:
+            self._check_pressure_determined()
+        except ValueError:
+            return True
+        return False
 
     def _check_arguments(self, mesh, viscosity: float, quadrature_degree, interfaces) -> dict:
         """Raise if the viscosity, the mesh's dimension, the quadrature degree or an interface spec is

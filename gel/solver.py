@@ -99,6 +99,7 @@ from dolfinx.fem import petsc as fem_petsc
 
 from femtools.functions import quadrature_measure, set_function, von_mises
 from femtools.interface import InterfaceNodes
+from femtools.krylov import gel_solver, linear_solver_choice
 from femtools.linalg import NewtonSolver, assemble_residual_vector, gather_csr, jacobian_at_rest, \
     schur_complement
 from femtools.mesh import as_tags, tagged_facets
@@ -237,7 +238,12 @@ class PoroelasticGelSolver(FieldSolver):
         quadrature_degree: quadrature degree of every integral (keep it equal
             to the monolithic reference's).
         petsc_options: overrides of the MUMPS LU options (defaults: femtools'
-            plus ``DEFAULT_PETSC_OPTIONS``).
+            plus ``DEFAULT_PETSC_OPTIONS``), or with ``solver="iterative"`` options of the
+            Krylov solver (``femtools.krylov.gel_solver``, e.g. ``ksp_rtol``).
+        solver: "direct" (MUMPS; block forward substitution of the linearisation at rest) or
+            "iterative" (GMRES, block lower-triangular preconditioner: AMG on the flow and the
+            network blocks, the pressure Schur complement as the sum of its Darcy + fixed-stress
+            and its viscous inverses; ``femtools.krylov.PressureSchur``).
         newton_rtol: relative Newton tolerance |du| <= rtol |u|.
         transient: build the time-dependent forms (v_s from the displacement
             history, see the module docstring); the solver is steady until
@@ -281,9 +287,10 @@ class PoroelasticGelSolver(FieldSolver):
                  body_forces=None, name: str = "gel", quadrature_degree: int = 4,
                  petsc_options: dict | None = None, newton_rtol: float = 1e-11,
                  transient: bool = False, kinematics: str = "small", newton_reuse: str = "adaptive",
-                 linear_path: bool = False):
+                 linear_path: bool = False, solver: str = "direct"):
         t0 = time.perf_counter()
         super().__init__(mesh)
+        self._iterative = linear_solver_choice(solver, name)
         _check_arguments(params, quadrature_degree, newton_rtol, kinematics)
         self.dim = _mesh_dimension(mesh)
         self.kinematics = kinematics
@@ -361,9 +368,29 @@ class PoroelasticGelSolver(FieldSolver):
         # at rest (steady) the flow's equations do not contain u: the linearisation is block
         # lower-triangular in ((w, p), u) and is factorised block by block (checked when assembled)
         flow = np.hstack([self._sub[0][1], self._sub[2][1]])
+        J_reference = jacobian_at_rest(F, self.state, data)
         return NewtonSolver(F_state, self.state, self.bcs, name=self.name, rtol=newton_rtol, reuse=newton_reuse,
-                            petsc_options=options, J_reference=jacobian_at_rest(F, self.state, data),
-                            F_data=F_data, reference_blocks=[flow, self._sub[1][1]])
+                            petsc_options=options, J_reference=J_reference,
+                            F_data=F_data, reference_blocks=[flow, self._sub[1][1]],
+                            linear_solver=self._krylov_solver(J_reference, petsc_options))
+
+    def _krylov_solver(self, J_reference, petsc_options):
+        """With ``solver="iterative"``: GMRES with the block preconditioner of ``femtools.krylov.gel_solver``,
+        its pressure block from the coefficients at rest (else None)."""
+        if not self._iterative:
+            return None
+        c = self.coefficients
+        p, q = ufl.TrialFunctions(self.W)[2], ufl.TestFunctions(self.W)[2]
+        phi_s, phi_f = c.phi_s0, 1 - c.phi_s0
+        drag = c.viscosity * c.xi * phi_f * phi_s           # k of the Brinkman block
+        nu_e = c.viscosity * phi_f                          # its viscous coefficient
+        # fixed stress: c0 (v_s = c0 u + ...) over the drained bulk modulus phi_s (1 + lambda_s) stiffness
+        beta = 0.0 if not self.transient else self.history.constants[0] / (c.stiffness * phi_s * (1 + c.lambda_s))
+        # phi_f^2 / k p q: a Poincare-scale mass that keeps the Neumann Laplacian regular when beta = 0
+        darcy = phi_f**2 / drag * (ufl.inner(ufl.grad(p), ufl.grad(q)) + p * q) + beta * p * q
+        mass = (phi_f**2 / nu_e + beta) * p * q
+        return gel_solver(self.W, self.name, fem.form(J_reference + darcy * self.dx), fem.form(mass * self.dx),
+                          self.bcs, petsc_options)
     def _build_spaces(self) -> None:
         """Mixed space [w (P2 vector), u (P2 vector), p (P1)], its collapsed subspaces, the state."""
         cell = self.mesh.ufl_cell()
