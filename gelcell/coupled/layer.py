@@ -12,7 +12,7 @@ Only the geometry and the outer boundary conditions are this module's.
 
 The slab (``LayerDevice(..., depth=W)``): the same layer extruded to
 0 < z < W on tetrahedra, with symmetry conditions on the z faces (tags
-FRONT z = 0 and BACK z = W): zero normal velocity, network displacement and
+Tag.FLOOR z = 0 and Tag.SYMMETRY_MID z = W, as the 3D devices' slab): zero normal velocity, network displacement and
 flux (V_z = v_f,z = u_z = 0) and zero tangential traction (natural).  The
 fully developed solution has no z component and does not depend on z, so
 it solves the slab exactly, and the 1D closed forms below hold unchanged.
@@ -82,14 +82,13 @@ from gelcell.coupled.monolithic import MonolithicCoefficients, MonolithicSolver
 from gelcell.coupled.participants import FluidParticipant, GelParticipant
 from gelcell.geometry import DeviceBoundaries, Tag
 
-__all__ = ["FLOWS", "FRONT", "BACK", "LayerCase", "LayerClosedForm", "LayerDevice", "LayerMonolithic",
+__all__ = ["FLOWS", "LayerCase", "LayerClosedForm", "LayerDevice", "LayerMonolithic",
            "layer_boundaries"]
 
 FLOWS = ("poiseuille", "couette", "compression")
 _ENDS = [int(Tag.INLET), int(Tag.OUTLET)]
-#: facet tags of the slab's symmetry faces z = 0 and z = depth (this device's own)
-FRONT, BACK = 41, 42
-_FACES_Z = [FRONT, BACK]
+#: the slab's symmetry faces z = 0 and z = depth (the 3D devices' floor and mid-height tags)
+_FACES_Z = [int(Tag.FLOOR), int(Tag.SYMMETRY_MID)]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -280,7 +279,7 @@ class LayerClosedForm:
 
 def layer_boundaries(case: LayerCase, dim: int = 2) -> DeviceBoundaries:
     """The layer's boundary conditions as a DeviceBoundaries (tags of :func:`_strip`), in ``dim`` = 2 or 3
-    (the slab: V_z = 0, v_f,z = u_z = 0 on the faces FRONT and BACK).
+    (the slab: V_z = 0, v_f,z = u_z = 0 on the faces z = 0 and z = depth).
 
     The compression support (u_s = 0, v_f free) is not expressible there;
     :class:`LayerDevice` adds it as extra gel data.
@@ -296,13 +295,14 @@ def layer_boundaries(case: LayerCase, dim: int = 2) -> DeviceBoundaries:
         gel_symmetry=[(_ENDS, 0 if compression else 1)] + ([(_FACES_Z, 2)] if slab else []),
         cell_symmetry=[],
         fluid_interfaces={"Gamma1": int(Tag.GAMMA1)},
-        cell_interfaces={})
+        cell_interfaces={}, dim=dim)
 
 
 def _strip(case: LayerCase, y0: float, y1: float, nx: int, ny: int, bottom: Tag, top: Tag,
            comm: MPI.Comm, depth: float | None = None, nz: int = 1):
     """A rectangle [0, length] x [y0, y1] tagged INLET (x = 0), OUTLET (x = length), ``bottom``, ``top``;
-    with ``depth`` the box [0, length] x [y0, y1] x [0, depth] (nz cells along z), also FRONT and BACK."""
+    with ``depth`` the box [0, length] x [y0, y1] x [0, depth] (nz cells along z), also FLOOR (z = 0) and
+    SYMMETRY_MID (z = depth)."""
     if depth is not None:
         return _box(case, (y0, y1), (nx, ny, nz), depth, comm,
                     ((bottom, 1, y0), (top, 1, y1)))
@@ -315,11 +315,12 @@ def _strip(case: LayerCase, y0: float, y1: float, nx: int, ny: int, bottom: Tag,
 def _box(case: LayerCase, ys: tuple[float, float], n: tuple[int, int, int], depth: float, comm: MPI.Comm,
          planes) -> tuple:
     """Tetrahedra (dolfinx's ``create_box``) on [0, length] x [ys] x [0, depth], tagged INLET, OUTLET,
-    FRONT, BACK and, for each ``(tag, axis, value)`` of ``planes``, the facets on that plane (interior
-    ones too)."""
+    FLOOR (z = 0), SYMMETRY_MID (z = depth) and, for each ``(tag, axis, value)`` of ``planes``, the
+    facets on that plane (interior ones too)."""
     msh = dmesh.create_box(comm, [np.array([0.0, ys[0], 0.0]), np.array([case.length, ys[1], depth])],
                            list(n), dmesh.CellType.tetrahedron)
-    sides = ((int(Tag.INLET), 0, 0.0), (int(Tag.OUTLET), 0, case.length), (FRONT, 2, 0.0), (BACK, 2, depth))
+    sides = ((int(Tag.INLET), 0, 0.0), (int(Tag.OUTLET), 0, case.length), (int(Tag.FLOOR), 2, 0.0),
+             (int(Tag.SYMMETRY_MID), 2, depth))
     return msh, _plane_tags(msh, tuple(sides) + tuple((int(t), a, v) for t, a, v in planes))
 
 
@@ -565,7 +566,7 @@ def _two_region_mesh(case: LayerCase, n: int, depth: float | None, comm: MPI.Com
     planes = [(int(Tag.INLET), 0, 0.0), (int(Tag.OUTLET), 0, case.length), (int(Tag.BOWL), 1, -case.H_g),
               (int(Tag.GAMMA1), 1, 0.0), (int(Tag.WALL), 1, case.H_f)]
     if depth is not None:
-        planes += [(FRONT, 2, 0.0), (BACK, 2, depth)]
+        planes += [(int(Tag.FLOOR), 2, 0.0), (int(Tag.SYMMETRY_MID), 2, depth)]
     return msh, cell_tags, _plane_tags(msh, planes)
 
 

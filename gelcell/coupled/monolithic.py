@@ -138,6 +138,9 @@ class MonolithicSolver:
         #: the cell tags of the cells (several cells: one tag each)
         self.cell_region_tags = tuple(int(t) for t in (cell_region_tags or (int(Tag.CELL),)))
         self.boundaries, self.coefficients = boundaries, coefficients
+        if boundaries.dim != msh.geometry.dim:
+            raise ValueError(f"monolithic: the boundaries have {boundaries.dim} components (DeviceBoundaries.dim), "
+                             f"the mesh is {msh.geometry.dim}D")
         tdim = msh.topology.dim
         #: the dimension of the device (2 or 3): the vector fields' number of components
         self.gdim = msh.geometry.dim
@@ -300,7 +303,7 @@ class MonolithicSolver:
         # multiplier components on the interface where the fluid velocity is fixed by an outer boundary
         on_interface = self._active(ilam, facets=list(b.fluid_interfaces.values()))
         zero = (0.0,) * self.gdim
-        for tags, comps in self._fluid_dirichlet_components():
+        for tags, comps in b.fluid_dirichlet_tags():
             for comp in comps:
                 bcs.append(self._dirichlet(ilam, tags, 0.0, comp, restrict=on_interface))
         no_slip = list(b.gel_no_slip) + list(b.cell_interfaces.values())
@@ -314,12 +317,6 @@ class MonolithicSolver:
         if self.finite:
             bcs += self._mesh_motion_conditions()
         return bcs
-
-    def _fluid_dirichlet_components(self) -> list[tuple[list[int], tuple[int, ...]]]:
-        """Every fluid Dirichlet boundary with the velocity components it fixes (all gdim on a velocity one)."""
-        b = self.boundaries
-        return ([(tags, tuple(range(self.gdim))) for tags, _ in b.fluid_velocity]
-                + [(tags, (c,)) for tags, c, _ in b.fluid_component])
 
     def _mesh_motion_conditions(self) -> list:
         """u_m = 0 on Gamma1/Gamma3 and the fluid's outer boundaries (one component on symmetry lines)."""
