@@ -157,7 +157,7 @@ class Device:
             K = self.cell.interface_stiffness(g)
             # the gel's node order (the data's "matching" mapping): P K P^T, P per component
             P = cp.build_mapping("matching", self.cell.interface_points(g), self.gel.interface_points(g)).matrix
-            P2 = np.kron(P.toarray(), np.eye(2))
+            P2 = np.kron(P.toarray(), np.eye(self.gel.mesh.geometry.dim))
             stiffnesses[g] = P2 @ K @ P2.T
         self.gel.set_interface_stiffnesses(stiffnesses)
         self.setup_time += time.perf_counter() - t0
