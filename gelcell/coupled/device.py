@@ -75,7 +75,7 @@ class Device:
         self.cell = self._cell_solver(options) if params.with_cell else None
         self.setup_time = time.perf_counter() - t0
         self.participants = self._participants(time_scheme, inflow)
-        self.data = coupling_data(self.boundaries, gamma2, self.kinematics)
+        self.data = coupling_data(self.boundaries, gamma2, self.kinematics, dim=self.fluid.mesh.geometry.dim)
         self.scheme: cp.CouplingScheme | None = None
         self.result: cp.CouplingResult | None = None
         #: where the last solve's linearized prior came from: "computed", "disk cache", "reused" or None
@@ -157,7 +157,7 @@ class Device:
             K = self.cell.interface_stiffness(g)
             # the gel's node order (the data's "matching" mapping): P K P^T, P per component
             P = cp.build_mapping("matching", self.cell.interface_points(g), self.gel.interface_points(g)).matrix
-            P2 = np.kron(P.toarray(), np.eye(2))
+            P2 = np.kron(P.toarray(), np.eye(self.gel.mesh.geometry.dim))
             stiffnesses[g] = P2 @ K @ P2.T
         self.gel.set_interface_stiffnesses(stiffnesses)
         self.setup_time += time.perf_counter() - t0
