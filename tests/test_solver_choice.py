@@ -6,7 +6,7 @@ right-hand side, the coupling at a 1e-10 residual: both far below 1e-8, far
 above round-off); the global size of the function spaces the solvers build
 (the unknowns ``auto`` counts before building them); the precedence and the
 errors of tests/test_config.py.  Meshes are coarse (every element size x3):
-the iterative device solve is ~10x slower than the direct one in 2D.
+the iterative device solve is 10-20x slower than the direct one in 2D.
 """
 
 from __future__ import annotations
@@ -40,11 +40,14 @@ from gelcell.run.transient import TransientRun
 from transient_cases import tau
 
 MESH = 3.0          # test-sized: every element size x3
+#: the time-dependent comparison on a coarser mesh: ~30 Krylov-solved coupling iterations in two windows
+#: (the comparison is of one discrete system on two solver paths: no resolution is needed)
+TRANSIENT_MESH = 6.0
 RTOL = 1e-8
 
 
-def _params(case: str) -> CaseParameters:
-    return CaseParameters.default(case, True).with_mesh_size(MESH)
+def _params(case: str, mesh_size: float = MESH) -> CaseParameters:
+    return CaseParameters.default(case, True).with_mesh_size(mesh_size)
 
 
 def _assert_quantities_agree(a: dict, b: dict, what) -> None:
@@ -71,8 +74,9 @@ def test_iterative_equals_direct_on_the_steady_device(case):
 
 
 def _series(solver: str, windows: int) -> dict:
-    """The time series of the shear device with its cell over ``windows`` backward-Euler windows from rest."""
-    p = _params("shear")
+    """The time series of the shear device with its cell over ``windows`` backward-Euler windows from rest
+    (each window's coupling converged to its 1e-10 residual)."""
+    p = _params("shear", TRANSIENT_MESH)
     settings = TimeSettings(transient=True, dt=tau(p) / 40, t_end=windows * tau(p) / 40)
     device = Device(p, MPI.COMM_WORLD, transient=True, time_scheme=settings.scheme, inflow=settings.waveform,
                     solver=solver)
@@ -82,9 +86,10 @@ def _series(solver: str, windows: int) -> dict:
 
 
 def test_iterative_equals_direct_in_a_time_dependent_run():
-    """Three windows from rest (the undrained start included): every quantity of every window to 1e-8."""
-    direct, iterative = _series("direct", 3), _series("iterative", 3)
-    assert len(direct["t"]) == len(iterative["t"]) >= 3
+    """Two windows from rest (the undrained start and a step on its history): every quantity of every window
+    to 1e-8."""
+    direct, iterative = _series("direct", 2), _series("iterative", 2)
+    assert len(direct["t"]) == len(iterative["t"]) == 3          # t = 0 and the two windows
     assert np.array_equal(direct["t"], iterative["t"])
     for column in DeviceQuantities.TIMESERIES:
         scale = np.abs(direct[column]).max()
