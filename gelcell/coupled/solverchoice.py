@@ -13,11 +13,14 @@ The threshold.  In 2D the direct path is the faster at every size measured
 (benchmarks/krylov_fields.py: 6-17x at 2.5k-36k unknowns per field), and a 2D
 device's fields stay far below the sizes where MUMPS's fill hurts (issue 30:
 762k unknowns in 15.7 s and 2.4 GB), so auto is direct in 2D.  In 3D
-(benchmarks/solver_auto_3d.py, P2 elasticity on a cube) the direct path is
-still 8x faster at 28k unknowns, but its cost grows faster with N than the
-Krylov solve's (LU fill of a 3D mesh: N^(4/3) memory, N^2 work); the switch is
-where the measured ratio, extrapolated with the measured exponents, reaches
-one, rounded down (see the constant).
+(benchmarks/solver_auto_3d.py, P2 elasticity on a cube, 6.6k-152k unknowns)
+the direct path is still 6.4-8.6x faster, the ratio falling only slowly
+(~N^-0.07 at the finest step): time does not favour the Krylov path at the
+sizes measured.  Memory does: MUMPS's factorisation takes 43, 335,
+1279 MB at 6.6k, 28k, 73k unknowns (N^1.38, the N^(4/3) fill of a 3D
+mesh), so ~2 GB at 100k, and a device factorises four such systems (fluid,
+its mesh motion, gel, cell) within the issue's 12 GB aim up to about there;
+above it the iterative path's O(N) memory is the one that fits.
 
 PETSc options per field (``[solver.petsc.FIELD]``) go to that field's solver:
 on the direct path on top of the device's MUMPS options of a steady run
@@ -39,8 +42,9 @@ KINDS = ("direct", "iterative", "auto")
 #: the fields of a device, in the order they are built
 FIELDS = ("fluid", "gel", "cell")
 
-#: auto: a field of a 3D device with more unknowns than this is solved iteratively (module docstring)
-AUTO_ITERATIVE_MIN_UNKNOWNS = 300_000
+#: auto: a field of a 3D device with more unknowns than this is solved iteratively (MUMPS would need
+#: more than ~2 GB for it; module docstring)
+AUTO_ITERATIVE_MIN_UNKNOWNS = 100_000
 
 #: per field: (P2 vector fields, P1 scalar fields) of its unknowns
 _SPACES = {"fluid": (1, 1), "gel": (2, 1), "cell": (1, 0)}
