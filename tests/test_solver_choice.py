@@ -194,3 +194,16 @@ def test_the_run_prints_and_writes_what_it_picked(tmp_path, capsys):
     assert "linear solvers: auto -> fluid direct, gel direct, cell direct" in capsys.readouterr().out
     written = tomllib.loads((out / "case.toml").read_text())["solver"]
     assert written["kind"] == "auto" and written["petsc"] == {"gel": {"mat_mumps_icntl_14": 80}}
+
+
+def test_petsc_options_reach_their_field_only():
+    """Direct: the gel's MUMPS ordering from [solver.petsc.gel], the others keep the steady default (AMF, 2);
+    iterative: the cell's Krylov iteration limit from [solver.petsc.cell], the others keep the default."""
+    device = Device(_params("shear"), petsc_options={"gel": {"mat_mumps_icntl_7": 0}})
+    assert device.gel.newton.solver.ordering == 0
+    for solver in (device.fluid.newton.solver, device.fluid.motion.solver.solver, device.cell._newton.solver):
+        assert solver.ordering == 2
+    device = Device(_params("shear"), solver="iterative", petsc_options={"cell": {"ksp_max_it": 77}})
+    assert device.cell._newton.solver.max_it == 77
+    for solver in (device.fluid.newton.solver, device.fluid.motion.solver.solver, device.gel.newton.solver):
+        assert solver.max_it == 1000, solver.name
