@@ -207,3 +207,8 @@ def test_petsc_options_reach_their_field_only():
     assert device.cell._newton.solver.max_it == 77
     for solver in (device.fluid.newton.solver, device.fluid.motion.solver.solver, device.gel.newton.solver):
         assert solver.max_it == 1000, solver.name
+
+
+def test_a_monolithic_summary_says_direct():
+    run = solve_monolithic(_params("shear"), checks=False, solver="auto")
+    assert run.summary["solver"] == {"kind": "auto", "fields": {"monolithic": "direct"}}

@@ -143,6 +143,7 @@ def solve_monolithic(params: CaseParameters, comm: MPI.Comm = MPI.COMM_WORLD, ch
     if solver not in ("direct", "auto"):
         raise ValueError(f"solver = {solver!r}: the monolithic reference is solved by MUMPS only "
                          f"(give 'direct' or 'auto')")
+    asked = {"kind": solver, "fields": {"monolithic": MONOLITHIC_SOLVER}}
     t0 = time.perf_counter()
     params = described(params)
     check_case(params)
@@ -161,7 +162,7 @@ def solve_monolithic(params: CaseParameters, comm: MPI.Comm = MPI.COMM_WORLD, ch
                              "active_dofs": int(solver.newton.num_active_dofs),
                              "dofs": solver.num_dofs}
     summary["coupling"] = None
-    summary["solver"] = {"kind": solver, "fields": {"monolithic": MONOLITHIC_SOLVER}}
+    summary["solver"] = asked
     summary["mesh"] = {"whole": {"cells": msh.topology.index_map(2).size_global, "dofs": solver.num_dofs},
                        "fluid": {"cells": _cells(fields.fluid_velocity)},
                        "gel": {"cells": _cells(fields.displacement)}}
