@@ -723,21 +723,27 @@ class NewtonSolver:
                                structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
         self.invalidate_jacobian()
 
-    def reference_csr(self, root: int | None = None) -> "scipy.sparse.csr_matrix | None":
-        """The kept linearisation at rest as the solves factorise it, gathered (:func:`gather_csr`).
+    def reference_matrix(self) -> PETSc.Mat:
+        """The kept linearisation at rest as the solves factorise it: a new distributed matrix
+        (each rank its own rows; the caller destroys it).
 
-        ``J_reference`` with Dirichlet rows and the interface stiffness: the held matrix
-        if the solver keeps it now, else assembled anew into a copy of its pattern.
+        ``J_reference`` with Dirichlet rows and the interface stiffness: a copy of the held
+        matrix if the solver keeps it now, else assembled anew into a copy of its pattern.
         """
         if self.J_reference is None:
             raise RuntimeError(f"{self.name}: no J_reference")
         if self._have_jacobian and not self._exact:
-            return gather_csr(self.A, root)
+            return self.A.copy()
         A = self.A.duplicate(copy=False)
         _assemble_into(A, self.J_reference, self.bcs)
         if self._stiffness is not None:
             # into the copy only: the solver's own first sum still extends its pattern
             A.axpy(1.0, self._stiffness["matrix"], structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+        return A
+
+    def reference_csr(self, root: int | None = None) -> "scipy.sparse.csr_matrix | None":
+        """:meth:`reference_matrix` gathered (:func:`gather_csr`; the whole matrix: small problems only)."""
+        A = self.reference_matrix()
         out = gather_csr(A, root)
         A.destroy()
         return out
