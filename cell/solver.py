@@ -47,7 +47,7 @@ from femtools.canonical import CanonicalOrder
 from femtools.functions import quadrature_measure, set_function, von_mises
 from femtools.interface import InterfaceNodes
 from femtools.krylov import elasticity_solver, linear_solver_choice
-from femtools.linalg import NewtonSolver, assemble_residual_vector, distributed_schur_complement, jacobian_at_rest
+from femtools.linalg import NewtonSolver, assemble_residual_vector, condensed_matrix, jacobian_at_rest
 from femtools.mesh import as_tags, tagged_facets
 from femtools.solver import FieldSolver
 
@@ -470,7 +470,7 @@ class NeoHookeanCellSolver(FieldSolver):
         on = dofs >= 0
         out = np.zeros((dofs.size, dofs.size))
         # distributed: the cell's matrix stays on the ranks that own its rows
-        out[np.ix_(on, on)] = distributed_schur_complement(A, dofs[on], f"{self.name} interface stiffness")
+        out[np.ix_(on, on)] = condensed_matrix(A, dofs[on], f"{self.name} interface stiffness")
         A.destroy()
         return 0.5 * (out + out.T)
 

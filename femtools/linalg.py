@@ -32,7 +32,7 @@ from femtools.errors import NewtonError, SingularSystemError
 __all__ = ["DirectSolver", "BlockTriangularSolver", "is_symmetric", "LinearSolver", "NewtonSolver", "SolverStats",
            "direct_solver", "assemble_residual_vector", "jacobian_at_rest", "SingularSystemError",
            "NewtonError", "gather_csr", "schur_complement", "gather_submatrix", "gather_entries",
-           "distributed_schur_complement"]
+           "condensed_matrix", "distributed_schur_complement"]
 
 _counter = itertools.count()
 _ICNTL = re.compile(r"^mat_mumps_icntl_(\d+)$")
@@ -1114,6 +1114,22 @@ def gather_entries(vec: PETSc.Vec, dofs: np.ndarray) -> np.ndarray:
 
 #: columns of the condensed matrix computed per block of back-substitutions
 SCHUR_BLOCK = 64
+
+
+def condensed_matrix(A: PETSc.Mat, keep: np.ndarray, name: str = "schur") -> np.ndarray:
+    """S = A_kk - A_kr A_rr^-1 A_rk onto the global indices ``keep``, dense, on every rank (collective).
+
+    On one rank by :func:`schur_complement` (one sequential factorisation: A is the whole
+    matrix there, nothing is gathered); on several by :func:`distributed_schur_complement`
+    (A stays distributed; the price is one back-substitution per kept index).
+    """
+    if A.getComm().getSize() > 1:
+        return distributed_schur_complement(A, keep, name)
+    import scipy.sparse
+    indptr, indices, values = A.getValuesCSR()
+    S = schur_complement(scipy.sparse.csr_matrix((values, indices, indptr), shape=A.getSize()), keep)
+    _record("schur", S.shape, S.size)
+    return S
 
 
 def distributed_schur_complement(A: PETSc.Mat, keep: np.ndarray, name: str = "schur") -> np.ndarray:

@@ -100,7 +100,7 @@ from dolfinx.fem import petsc as fem_petsc
 from femtools.functions import quadrature_measure, set_function, von_mises
 from femtools.interface import InterfaceNodes
 from femtools.krylov import gel_solver, linear_solver_choice
-from femtools.linalg import NewtonSolver, assemble_residual_vector, distributed_schur_complement, \
+from femtools.linalg import NewtonSolver, assemble_residual_vector, condensed_matrix, \
     gather_entries, gather_submatrix, jacobian_at_rest
 from femtools.mesh import as_tags, tagged_facets
 from femtools.canonical import CanonicalOrder, MixedCanonical
@@ -940,7 +940,7 @@ class PoroelasticGelSolver(FieldSolver):
         dr, dc = _equilibrate(K)
         order = np.argsort(gamma)
         S = np.empty((gamma.size, gamma.size))
-        S[np.ix_(order, order)] = distributed_schur_complement(K, gamma[order], f"{self.name} interface Jacobian")
+        S[np.ix_(order, order)] = condensed_matrix(K, gamma[order], f"{self.name} interface Jacobian")
         out = S, gather_entries(dr, gamma), gather_entries(dc, gamma)
         for obj in (K, dr, dc):
             obj.destroy()
