@@ -1132,6 +1132,23 @@ def condensed_matrix(A: PETSc.Mat, keep: np.ndarray, name: str = "schur") -> np.
     return S
 
 
+def _kept_columns(A: PETSc.Mat, keep: np.ndarray):
+    """``columns(j0, width)``: -A[:, keep[j0:j0 + width]] on this rank's rows, dense, from its own CSR."""
+    indptr, indices, values = A.getValuesCSR()
+    order = np.argsort(keep, kind="stable")
+    k = np.minimum(np.searchsorted(keep[order], indices), keep.size - 1)
+    hit = keep[order][k] == indices
+    rows = np.repeat(np.arange(indptr.size - 1), np.diff(indptr))[hit]
+    position, entries = order[k[hit]], values[hit]
+
+    def columns(j0: int, width: int) -> np.ndarray:
+        out = np.zeros((indptr.size - 1, width))
+        sel = (position >= j0) & (position < j0 + width)
+        np.add.at(out, (rows[sel], position[sel] - j0), -entries[sel])
+        return out
+    return columns
+
+
 def distributed_schur_complement(A: PETSc.Mat, keep: np.ndarray, name: str = "schur") -> np.ndarray:
     """S = A_kk - A_kr A_rr^-1 A_rk of a distributed matrix onto the global indices ``keep`` (collective).
 
@@ -1156,32 +1173,35 @@ def distributed_schur_complement(A: PETSc.Mat, keep: np.ndarray, name: str = "sc
     solver.set_operator(D)
     solver.factorize_symmetric_if_possible()
     F = solver.ksp.getPC().getFactorMatrix()
+    columns = _kept_columns(A, keep)
+    # the kept rows of A (each rank its own, sorted), with A's column layout: (A y)_k without A y
+    rows = mine[np.argsort(keep[mine])]
+    is_rows = PETSc.IS().createGeneral(keep[rows].astype(PETSc.IntType), comm=A.getComm())
+    is_cols = PETSc.IS().createStride(end - start, start, 1, comm=A.getComm())
+    A_k = A.createSubMatrix(is_rows, is_cols)
     S = np.zeros((nk, nk))
     for j0 in range(0, nk, SCHUR_BLOCK):
-        cols = np.arange(j0, min(j0 + SCHUR_BLOCK, nk))
-        size = ((end - start, A.getSize()[0]), (PETSc.DECIDE, cols.size))
-        E, Y = (PETSc.Mat().createDense(size, comm=A.getComm()) for _ in range(2))
-        E.setUp()
+        width = min(SCHUR_BLOCK, nk - j0)
+        B, Y = (PETSc.Mat().createDense(((end - start, A.getSize()[0]), (PETSc.DECIDE, width)), comm=A.getComm())
+                for _ in range(2))
+        B.setUp()
         Y.setUp()
-        unit = E.getDenseArray()
-        unit[:] = 0.0
-        here = (mine >= j0) & (mine < j0 + cols.size)
-        unit[keep[mine[here]] - start, mine[here] - j0] = 1.0
-        E.assemble()
-        B = A.matMult(E)
         rhs = B.getDenseArray()
-        rhs *= -1.0
-        rhs[keep[mine] - start] = unit[keep[mine] - start]       # the identity rows of D
+        rhs[:] = columns(j0, width)                         # -A e_j on the rows of A_rr
+        rhs[keep[mine] - start] = 0.0
+        here = (mine >= j0) & (mine < j0 + width)
+        rhs[keep[mine[here]] - start, mine[here] - j0] = 1.0        # the identity rows of D: y_k = e_j
+        B.assemble()
         F.matSolve(B, Y)
-        Z = A.matMult(Y)
-        block = np.zeros((nk, cols.size))
-        block[mine] = Z.getDenseArray()[keep[mine] - start]
+        Z = A_k.matMult(Y)
+        block = np.zeros((nk, width))
+        block[rows] = Z.getDenseArray()
         if comm.size > 1:
             comm.Allreduce(MPI.IN_PLACE, block, op=MPI.SUM)     # each kept row has one owner
-        S[:, cols] = block
-        for M in (E, Y, B, Z):
+        S[:, j0:j0 + width] = block
+        for M in (Y, B, Z):
             M.destroy()
-    solver.ksp.destroy()
-    D.destroy()
+    for obj in (solver.ksp, D, A_k, is_rows, is_cols):
+        obj.destroy()
     _record("schur", S.shape, S.size)
     return S
