@@ -130,6 +130,6 @@ def _cost_line(cost: dict) -> str:
     """The unknowns per field and the peak memory (with several ranks, each rank's too)."""
     unknowns = ", ".join(f"{field} {n}" for field, n in cost["unknowns"].items())
     per_rank = cost["peak_memory_mb_per_rank"]
-    ranks = (f" (max over {len(per_rank)} ranks: " + ", ".join(_memory(m) for m in per_rank) + ")"
+    ranks = (f" (max over {len(per_rank)} ranks; per rank " + ", ".join(_memory(m) for m in per_rank) + ")"
              if len(per_rank) > 1 else "")
     return f"cost: unknowns {unknowns}; peak memory {_memory(cost['peak_memory_mb'])}{ranks}"
