@@ -135,11 +135,11 @@ def _gelcell(*argv: str) -> subprocess.CompletedProcess:
 
 
 def _numbers(node, path=""):
-    """The summary's numbers by path, without what depends on the machine (timings, file lists)."""
+    """The summary's numbers by path, without what depends on the machine (timings, file lists, memory)."""
     if isinstance(node, dict):
         out = {}
         for key, value in node.items():
-            if key not in ("timing", "files", "wall_time"):
+            if key not in ("timing", "files", "wall_time", "peak_memory_mb", "peak_memory_mb_per_rank"):
                 out.update(_numbers(value, f"{path}/{key}"))
         return out
     if isinstance(node, list):

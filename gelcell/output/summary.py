@@ -114,7 +114,22 @@ def format_summary(summary: dict) -> str:
     if solver:
         lines.append(f"linear solvers: {solver['kind']} -> "
                      + ", ".join(f"{field} {kind}" for field, kind in solver["fields"].items()))
+    if summary.get("cost"):
+        lines.append(_cost_line(summary["cost"]))
     t = summary.get("timing", {})
     if t:
         lines.append("timing [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in t.items()))
     return "\n".join(lines)
+
+
+def _memory(mb: float) -> str:
+    return f"{mb / 1024.0:.2f} GB" if mb >= 1024.0 else f"{mb:.0f} MB"
+
+
+def _cost_line(cost: dict) -> str:
+    """The unknowns per field and the peak memory (with several ranks, each rank's too)."""
+    unknowns = ", ".join(f"{field} {n}" for field, n in cost["unknowns"].items())
+    per_rank = cost["peak_memory_mb_per_rank"]
+    ranks = (f" (max over {len(per_rank)} ranks; per rank " + ", ".join(_memory(m) for m in per_rank) + ")"
+             if len(per_rank) > 1 else "")
+    return f"cost: unknowns {unknowns}; peak memory {_memory(cost['peak_memory_mb'])}{ranks}"

@@ -27,6 +27,7 @@ from gelcell.post.fields import DeviceFields, fields_from_device, fields_from_mo
 from gelcell.post.quantities import summarize
 from gelcell.post.residuals import interface_residuals
 from gelcell.post.validity import check_case
+from gelcell.run.cost import cost_summary, device_unknowns, monolithic_unknowns, space_unknowns
 
 __all__ = ["CaseRun", "solve_partitioned", "solve_monolithic", "solver_summary", "MONOLITHIC_SOLVER"]
 
@@ -42,8 +43,7 @@ class CaseRun(typing.NamedTuple):
     solver: typing.Any
 
 
-def _dofs(space) -> int:
-    return space.dofmap.index_map.size_global * space.dofmap.index_map_bs
+_dofs = space_unknowns
 
 
 def solve_partitioned(params: CaseParameters, coupling: typing.Mapping | None = None,
@@ -93,6 +93,7 @@ def solve_partitioned(params: CaseParameters, coupling: typing.Mapping | None = 
     summary["coupling"] = _coupling_summary(device, config, result, reused)
     summary["solver"] = solver_summary(device)
     summary["mesh"] = _mesh_summary(device, fields)
+    summary["cost"] = cost_summary(device_unknowns(device), comm)
     summary["timing"] = {"setup": device.mesh_time + device.setup_time, "coupling": t_solve,
                          **{f"solve_{k}": v for k, v in result.timing.items()},
                          "total": time.perf_counter() - t0}
@@ -168,6 +169,7 @@ def solve_monolithic(params: CaseParameters, comm: MPI.Comm = MPI.COMM_WORLD, ch
                        "gel": {"cells": _cells(fields.displacement)}}
     if fields.cell_displacement is not None:
         summary["mesh"]["cell"] = {"cells": _cells(fields.cell_displacement)}
+    summary["cost"] = cost_summary(monolithic_unknowns(solver), comm)
     summary["timing"] = {"setup": solver.setup_time + (t1 - t0 - solver.setup_time), "solve": t_solve,
                          "total": time.perf_counter() - t0}
     if checks:

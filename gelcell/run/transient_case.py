@@ -29,6 +29,7 @@ from gelcell.output.timeseries import write_timeseries
 from gelcell.post.milestones import transient_summary
 from gelcell.post.validity import model_warnings
 from gelcell.run.backends import MonolithicBackend, PartitionedBackend
+from gelcell.run.cost import cost_summary, device_unknowns, monolithic_unknowns
 from gelcell.run.frames import FRAMES_DIR, read_frame
 from gelcell.run.resume import CHECKPOINT
 from gelcell.run.solve import MONOLITHIC_SOLVER, solver_summary
@@ -72,6 +73,8 @@ def _summary(run: TransientRun, backend, state: dict, config: RunConfig, setup_t
     summary["coupling"] = backend.describe()
     summary["solver"] = (solver_summary(backend.device) if backend.method == "partitioned" else
                          {"kind": config.solver.kind, "fields": {"monolithic": MONOLITHIC_SOLVER}})
+    summary["cost"] = cost_summary(device_unknowns(backend.device) if backend.method == "partitioned" else
+                                   monolithic_unknowns(backend.solver), backend.comm)
     summary["transient"] = transient_summary(state, params, config.time, run.plan)
     if params.with_cell:
         # the model's limits over the whole run, not only at its end (e.g. the peaks of a pulsatile inflow)
