@@ -207,7 +207,8 @@ def _with_overrides(config: dict, overrides: typing.Mapping, transient: bool = F
 
     An ``acceleration`` table of another type replaces the device's; of the
     same type it is merged key by key, and a Jacobian prior it names drops
-    the device's relaxation prior.
+    the device's relaxation prior; a time-dependent run's linearized prior
+    reuses no past windows' columns unless the table says how many.
     """
     acc = config["acceleration"]
     for key, value in overrides.items():

@@ -275,7 +275,8 @@ class Device:
     def _default_prior(self, config: dict) -> dict:
         """``config`` with the linearized prior where the device default has it (a new dict), else ``config``.
 
-        The default where it pays: a steady run with IQN
+        The default where it pays: a steady run (a time-dependent one too, its
+        prior per step, without past windows' columns: :meth:`window_scheme`) with IQN
         whose acceleration table sets neither ``jacobian_prior`` nor
         ``relaxation_prior``, with ``gamma2`` "schur" or "dirichlet" (the
         cell's Jacobian has no Robin-Neumann form), and at most
