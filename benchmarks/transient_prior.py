@@ -10,6 +10,7 @@ says it used, and t50/t90/t99.
     python benchmarks/transient_prior.py                 # default mesh, shear (the baseline)
     python benchmarks/transient_prior.py --mesh-size 3 --devices shear normal
     python benchmarks/transient_prior.py --monolithic    # also the monolithic BE at dt = 5e-8
+    python benchmarks/transient_prior.py --mesh-size 3 --scheme bdf2 --adaptive --t-end 3e-6
 
 The prior's disk cache does not serve time-dependent runs: every "after" run computes its
 factorisations.  Wall times on a shared machine are upper bounds; compare runs of one call.
@@ -70,15 +71,19 @@ def main() -> None:
     ap.add_argument("--devices", nargs="+", default=["shear"])
     ap.add_argument("--scheme", default="be", choices=("be", "bdf2"))
     ap.add_argument("--monolithic", action="store_true", help="also the monolithic BE run at dt = 5e-8")
+    ap.add_argument("--adaptive", action="store_true", help="adaptive dt (the default tolerance)")
+    ap.add_argument("--t-end", default=None, help="end time (default: until steady)")
     opts = ap.parse_args()
     mesh = [] if opts.mesh_size is None else ["--mesh-size", str(opts.mesh_size)]
     columns = f"{'wins':>5s} {'its':>6s} {'/win':>6s} {'/w>5':>6s} {'wall s':>7s} {'cpu s':>7s}"
     print(f"{'run':44s} {columns}  t50/t90/t99  [prior]")
     for device in opts.devices:
         base = ["run", device, "--transient", "--time-scheme", opts.scheme] + mesh
+        base += (["--adaptive"] if opts.adaptive else []) + (["--t-end", opts.t_end] if opts.t_end else [])
         for label, extra in (("before (--jacobian-prior none)", ["--jacobian-prior", "none"]),
                              ("after (default: linearized per dt)", [])):
-            print(_line(f"{device} {opts.scheme} {label}", _run(base + extra)), flush=True)
+            kind = f"{opts.scheme}{' adaptive' if opts.adaptive else ''}"
+            print(_line(f"{device} {kind} {label}", _run(base + extra)), flush=True)
         if opts.monolithic:
             args = ["run", device, "--transient", "--monolithic", "--dt", "5e-8", "--t-end", "3.35e-6"] + mesh
             print(_line(f"{device} monolithic BE dt 5e-8", _run(args)), flush=True)
