@@ -47,7 +47,7 @@ from femtools.canonical import CanonicalOrder
 from femtools.functions import quadrature_measure, set_function, von_mises
 from femtools.interface import InterfaceNodes
 from femtools.krylov import elasticity_solver, linear_solver_choice
-from femtools.linalg import NewtonSolver, assemble_residual_vector, gather_csr, jacobian_at_rest, schur_complement
+from femtools.linalg import NewtonSolver, assemble_residual_vector, condensed_matrix, jacobian_at_rest
 from femtools.mesh import as_tags, tagged_facets
 from femtools.solver import FieldSolver
 
@@ -466,12 +466,12 @@ class NeoHookeanCellSolver(FieldSolver):
         others = [bc for bc in self.bcs if bc is not self._interface_bcs[name]]
         A = fem_petsc.assemble_matrix(self._newton.J_reference, bcs=others)
         A.assemble()
-        K = gather_csr(A)
-        A.destroy()
         dofs = self.interface_nodes(name).global_dofs(self.V, bcs=others).ravel()
         on = dofs >= 0
         out = np.zeros((dofs.size, dofs.size))
-        out[np.ix_(on, on)] = schur_complement(K, dofs[on])
+        # distributed: the cell's matrix stays on the ranks that own its rows
+        out[np.ix_(on, on)] = condensed_matrix(A, dofs[on], f"{self.name} interface stiffness")
+        A.destroy()
         return 0.5 * (out + out.T)
 
     def interface_jacobian(self) -> dict[tuple[tuple[str, str], tuple[str, str]], np.ndarray]:

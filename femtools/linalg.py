@@ -31,7 +31,8 @@ from femtools.errors import NewtonError, SingularSystemError
 
 __all__ = ["DirectSolver", "BlockTriangularSolver", "is_symmetric", "LinearSolver", "NewtonSolver", "SolverStats",
            "direct_solver", "assemble_residual_vector", "jacobian_at_rest", "SingularSystemError",
-           "NewtonError", "gather_csr", "schur_complement"]
+           "NewtonError", "gather_csr", "schur_complement", "gather_submatrix", "gather_entries",
+           "condensed_matrix", "distributed_schur_complement"]
 
 _counter = itertools.count()
 _ICNTL = re.compile(r"^mat_mumps_icntl_(\d+)$")
@@ -722,21 +723,27 @@ class NewtonSolver:
                                structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
         self.invalidate_jacobian()
 
-    def reference_csr(self, root: int | None = None) -> "scipy.sparse.csr_matrix | None":
-        """The kept linearisation at rest as the solves factorise it, gathered (:func:`gather_csr`).
+    def reference_matrix(self) -> PETSc.Mat:
+        """The kept linearisation at rest as the solves factorise it: a new distributed matrix
+        (each rank its own rows; the caller destroys it).
 
-        ``J_reference`` with Dirichlet rows and the interface stiffness: the held matrix
-        if the solver keeps it now, else assembled anew into a copy of its pattern.
+        ``J_reference`` with Dirichlet rows and the interface stiffness: a copy of the held
+        matrix if the solver keeps it now, else assembled anew into a copy of its pattern.
         """
         if self.J_reference is None:
             raise RuntimeError(f"{self.name}: no J_reference")
         if self._have_jacobian and not self._exact:
-            return gather_csr(self.A, root)
+            return self.A.copy()
         A = self.A.duplicate(copy=False)
         _assemble_into(A, self.J_reference, self.bcs)
         if self._stiffness is not None:
             # into the copy only: the solver's own first sum still extends its pattern
             A.axpy(1.0, self._stiffness["matrix"], structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+        return A
+
+    def reference_csr(self, root: int | None = None) -> "scipy.sparse.csr_matrix | None":
+        """:meth:`reference_matrix` gathered (:func:`gather_csr`; the whole matrix: small problems only)."""
+        A = self.reference_matrix()
         out = gather_csr(A, root)
         A.destroy()
         return out
@@ -949,6 +956,7 @@ def gather_csr(A: PETSc.Mat, root: int | None = None) -> "scipy.sparse.csr_matri
             return None
         counts, indices, values = (np.concatenate([p[k] for p in parts]) for k in range(3))
         indptr = np.concatenate([[0], np.cumsum(counts)])
+    _record("csr", A.getSize(), indices.size)
     return scipy.sparse.csr_matrix((values, indices, indptr), shape=A.getSize())
 
 
@@ -1049,3 +1057,151 @@ def assemble_residual_vector(form) -> PETSc.Vec:
     vec = fem_petsc.assemble_vector(form)
     vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
     return vec
+
+
+#: when a list, every gather of this module appends ``(what, rows, columns, nnz)`` of the object it
+#: gathers (an instrumentation hook: tests check that no run gathers a global matrix)
+GATHERED: list | None = None
+
+
+def _record(what: str, shape: tuple, nnz: int) -> None:
+    if GATHERED is not None:
+        GATHERED.append((what, int(shape[0]), int(shape[1]), int(nnz)))
+
+
+def gather_submatrix(A: PETSc.Mat, rows: np.ndarray, cols: np.ndarray) -> "scipy.sparse.csr_matrix":
+    """``A[rows][:, cols]`` of a distributed matrix as a scipy CSR matrix on every rank (collective).
+
+    ``rows`` and ``cols`` (global indices, the same on every rank; ``cols`` without repeats) are
+    small (interface dofs): each rank sends only the entries of its own rows among ``rows`` in the
+    columns ``cols``, so nothing of the size of ``A`` is held or sent.
+    """
+    import scipy.sparse
+    rows, cols = np.asarray(rows, dtype=np.int64), np.asarray(cols, dtype=np.int64)
+    start, end = A.getOwnershipRange()
+    indptr, indices, values = A.getValuesCSR()
+    mine = np.flatnonzero((rows >= start) & (rows < end))
+    local = rows[mine] - start
+    counts = indptr[local + 1] - indptr[local]
+    at = np.repeat(indptr[local], counts) + np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    r, c, v = np.repeat(mine, counts), indices[at].astype(np.int64), values[at]
+    order = np.argsort(cols, kind="stable")
+    k = np.minimum(np.searchsorted(cols[order], c), max(cols.size - 1, 0))
+    hit = cols[order][k] == c if cols.size else np.zeros(c.size, bool)
+    r, c, v = r[hit], order[k[hit]], v[hit]
+    comm = A.getComm().tompi4py()
+    if comm.size > 1:
+        parts = comm.allgather((r, c, v))
+        r, c, v = (np.concatenate([p[j] for p in parts]) for j in range(3))
+    out = scipy.sparse.csr_matrix((v, (r, c)), shape=(rows.size, cols.size))
+    _record("submatrix", out.shape, out.nnz)
+    return out
+
+
+def gather_entries(vec: PETSc.Vec, dofs: np.ndarray) -> np.ndarray:
+    """The entries ``dofs`` (global, the same on every rank) of a distributed vector, on every rank."""
+    dofs = np.asarray(dofs, dtype=np.int64)
+    start, end = vec.getOwnershipRange()
+    mine = np.flatnonzero((dofs >= start) & (dofs < end))
+    out = np.zeros(dofs.size)
+    out[mine] = vec.array_r[dofs[mine] - start]
+    comm = vec.getComm().tompi4py()
+    if comm.size > 1:
+        comm.Allreduce(MPI.IN_PLACE, out, op=MPI.SUM)      # each entry has one owner
+    _record("entries", (dofs.size, 1), dofs.size)
+    return out
+
+
+#: columns of the condensed matrix computed per block of back-substitutions
+SCHUR_BLOCK = 64
+
+
+def condensed_matrix(A: PETSc.Mat, keep: np.ndarray, name: str = "schur") -> np.ndarray:
+    """S = A_kk - A_kr A_rr^-1 A_rk onto the global indices ``keep``, dense, on every rank (collective).
+
+    On one rank by :func:`schur_complement` (one sequential factorisation: A is the whole
+    matrix there, nothing is gathered); on several by :func:`distributed_schur_complement`
+    (A stays distributed; the price is one back-substitution per kept index).
+    """
+    if A.getComm().getSize() > 1:
+        return distributed_schur_complement(A, keep, name)
+    import scipy.sparse
+    indptr, indices, values = A.getValuesCSR()
+    S = schur_complement(scipy.sparse.csr_matrix((values, indices, indptr), shape=A.getSize()), keep)
+    _record("schur", S.shape, S.size)
+    return S
+
+
+def _kept_columns(A: PETSc.Mat, keep: np.ndarray):
+    """``columns(j0, width)``: -A[:, keep[j0:j0 + width]] on this rank's rows, dense, from its own CSR."""
+    indptr, indices, values = A.getValuesCSR()
+    order = np.argsort(keep, kind="stable")
+    k = np.minimum(np.searchsorted(keep[order], indices), keep.size - 1)
+    hit = keep[order][k] == indices
+    rows = np.repeat(np.arange(indptr.size - 1), np.diff(indptr))[hit]
+    position, entries = order[k[hit]], values[hit]
+
+    def columns(j0: int, width: int) -> np.ndarray:
+        out = np.zeros((indptr.size - 1, width))
+        sel = (position >= j0) & (position < j0 + width)
+        np.add.at(out, (rows[sel], position[sel] - j0), -entries[sel])
+        return out
+    return columns
+
+
+def distributed_schur_complement(A: PETSc.Mat, keep: np.ndarray, name: str = "schur") -> np.ndarray:
+    """S = A_kk - A_kr A_rr^-1 A_rk of a distributed matrix onto the global indices ``keep`` (collective).
+
+    The same S as :func:`schur_complement`, without gathering A: A_rr is factorised
+    distributed (MUMPS, each rank its own rows) as D, A with the rows and columns ``keep``
+    replaced by the identity.  Column j of S is (A y)_k, with D y = [-A_rk e_j; e_j]
+    (y_k = e_j, y_r = -A_rr^-1 A_rk e_j), for :data:`SCHUR_BLOCK` columns per
+    back-substitution.  Returns the dense (nk, nk) S on every rank: besides A's
+    own rows, each rank holds (rows it owns) x SCHUR_BLOCK and S.  A singular
+    A_rr raises :class:`SingularSystemError` (unlike :func:`schur_complement`).
+    """
+    keep = np.asarray(keep, dtype=np.int64)
+    nk = keep.size
+    if nk == 0:
+        return np.zeros((0, 0))
+    comm = A.getComm().tompi4py()
+    start, end = A.getOwnershipRange()
+    mine = np.flatnonzero((keep >= start) & (keep < end))
+    D = A.duplicate(copy=True)
+    D.zeroRowsColumns(keep[mine].astype(PETSc.IntType), diag=1.0)
+    solver = DirectSolver(A.getComm(), name)
+    solver.set_operator(D)
+    solver.factorize_symmetric_if_possible()
+    F = solver.ksp.getPC().getFactorMatrix()
+    columns = _kept_columns(A, keep)
+    # the kept rows of A (each rank its own, sorted), with A's column layout: (A y)_k without A y
+    rows = mine[np.argsort(keep[mine])]
+    is_rows = PETSc.IS().createGeneral(keep[rows].astype(PETSc.IntType), comm=A.getComm())
+    is_cols = PETSc.IS().createStride(end - start, start, 1, comm=A.getComm())
+    A_k = A.createSubMatrix(is_rows, is_cols)
+    S = np.zeros((nk, nk))
+    for j0 in range(0, nk, SCHUR_BLOCK):
+        width = min(SCHUR_BLOCK, nk - j0)
+        B, Y = (PETSc.Mat().createDense(((end - start, A.getSize()[0]), (PETSc.DECIDE, width)), comm=A.getComm())
+                for _ in range(2))
+        B.setUp()
+        Y.setUp()
+        rhs = B.getDenseArray()
+        rhs[:] = columns(j0, width)                         # -A e_j on the rows of A_rr
+        rhs[keep[mine] - start] = 0.0
+        here = (mine >= j0) & (mine < j0 + width)
+        rhs[keep[mine[here]] - start, mine[here] - j0] = 1.0        # the identity rows of D: y_k = e_j
+        B.assemble()
+        F.matSolve(B, Y)
+        Z = A_k.matMult(Y)
+        block = np.zeros((nk, width))
+        block[rows] = Z.getDenseArray()
+        if comm.size > 1:
+            comm.Allreduce(MPI.IN_PLACE, block, op=MPI.SUM)     # each kept row has one owner
+        S[:, j0:j0 + width] = block
+        for M in (Y, B, Z):
+            M.destroy()
+    for obj in (solver.ksp, D, A_k, is_rows, is_cols):
+        obj.destroy()
+    _record("schur", S.shape, S.size)
+    return S

@@ -126,31 +126,60 @@ def _band_partition(comm: MPI.Comm, nparts: int, graph, ghosting: bool):
     A deterministic graph partitioner: the same mesh always gets the same
     partition (dolfinx 0.5.2's SCOTCH partitioner draws another one in every
     process, which changes round-off from run to run).  With ``ghosting``,
-    each cell also lists the other parts that own a neighbour of it.
+    each cell also lists the other parts that own a neighbour of it.  The
+    ordering is sequential: rank 0 gathers the dual graph (the meshes built
+    here hand every cell to create_mesh on rank 0 anyway), and each rank
+    receives the parts of its own cells only.
     """
-    from scipy.sparse import csr_matrix
-    from scipy.sparse.csgraph import reverse_cuthill_mckee
     offsets, links = np.asarray(graph.offsets), np.asarray(graph.array)
     n_local = graph.num_nodes
     counts = comm.allgather(n_local)
     start = int(sum(counts[:comm.rank]))
-    n = int(sum(counts))
     rows = np.repeat(np.arange(n_local, dtype=np.int64) + start, np.diff(offsets))
-    rows, cols = np.hstack(comm.allgather(rows)), np.hstack(comm.allgather(links.astype(np.int64)))
+    pieces = comm.gather((rows, links.astype(np.int64)), root=0)
+    mine = comm.scatter(_band_parts(pieces, counts, nparts, ghosting) if comm.rank == 0 else None, root=0)
+    if not ghosting or nparts == 1:
+        return _cpp.graph.AdjacencyList_int32(mine[0])
+    return _cpp.graph.AdjacencyList_int32(*mine)
+
+
+def _band_parts(pieces: list, counts: list, nparts: int, ghosting: bool) -> list:
+    """On rank 0: per rank, the parts of its cells (``(parts,)``, or with ``ghosting``
+    ``(owner and the other parts of each cell's neighbours, offsets)``) from the gathered dual graph."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import reverse_cuthill_mckee
+    rows, cols = (np.concatenate([p[k] for p in pieces]) for k in range(2))
+    n = int(sum(counts))
+    _record_dual_graph(n, rows.size)
     adjacency = csr_matrix((np.ones(rows.size, dtype=np.int8), (rows, cols)), shape=(n, n))
     order = reverse_cuthill_mckee(adjacency, symmetric_mode=True)
     parts = np.empty(n, dtype=np.int32)
     parts[order] = (np.arange(n, dtype=np.int64) * nparts // max(n, 1)).astype(np.int32)
-    mine = parts[start:start + n_local]
+    bounds = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     if not ghosting or nparts == 1:
-        return _cpp.graph.AdjacencyList_int32(mine.copy())
-    data, out_offsets = [], [0]
-    for i in range(n_local):
-        owner = int(mine[i])
-        others = sorted(set(parts[links[offsets[i]:offsets[i + 1]]].tolist()) - {owner})
-        data += [owner] + others
-        out_offsets.append(len(data))
-    return _cpp.graph.AdjacencyList_int32(np.asarray(data, dtype=np.int32), np.asarray(out_offsets, dtype=np.int32))
+        return [(parts[bounds[r]:bounds[r + 1]].copy(),) for r in range(len(counts))]
+    # each cell: its owner, then the other parts among its neighbours, sorted
+    other = parts[cols] != parts[rows]
+    keys = np.unique(np.concatenate([np.arange(n, dtype=np.int64) * (nparts + 1),
+                                     rows[other] * (nparts + 1) + parts[cols[other]] + 1]))
+    cell, slot = keys // (nparts + 1), keys % (nparts + 1)
+    data = np.where(slot == 0, parts[cell], slot - 1).astype(np.int32)
+    ends = np.searchsorted(cell, bounds)
+    out = []
+    for r in range(len(counts)):
+        here = cell[ends[r]:ends[r + 1]] - bounds[r]
+        offsets = np.concatenate([[0], np.cumsum(np.bincount(here, minlength=counts[r]))]).astype(np.int32)
+        out.append((data[ends[r]:ends[r + 1]].copy(), offsets))
+    return out
+
+
+#: when a list, :func:`_band_parts` appends ``(cells, links)`` of each dual graph it gathers on rank 0
+DUAL_GRAPHS: list | None = None
+
+
+def _record_dual_graph(cells: int, links: int) -> None:
+    if DUAL_GRAPHS is not None:
+        DUAL_GRAPHS.append((cells, links))
 
 
 #: the cell partitioner of every mesh built here (deterministic, see ``_band_partition``)

@@ -62,7 +62,7 @@ from femtools.functions import quadrature_measure, set_function
 from femtools.interface import InterfaceMass, InterfaceNodes, global_dofs
 from femtools.mesh import as_tags, connected_components, tagged_facets
 from femtools.krylov import linear_solver_choice, stokes_solver
-from femtools.linalg import LinearSolver, SolverStats, gather_csr, schur_complement
+from femtools.linalg import LinearSolver, SolverStats, condensed_matrix, gather_submatrix
 from femtools.solver import FieldSolver
 from fluid import forms
 
@@ -701,7 +701,7 @@ class StokesSolver(FieldSolver):
         interface velocity dofs plus one pressure dof per connected fluid part (without
         it the eliminated block of an enclosed part is singular: the pressure constant),
         (K^-1)_kk = S^-1, S the Schur complement of the operator K (with its Dirichlet
-        conditions) onto k (``femtools.linalg.schur_complement``, one sparse LU), and
+        conditions) onto k (``femtools.linalg.condensed_matrix``), and
         since b vanishes off Gamma: V_Gamma = (S^-1)_GG B g.  At a solution the bulk
         residual (the reaction) at an interface row is b - R_rob V_Gamma, R_rob =
         alpha_n B_N + alpha_t B_T the Robin operator, so the traction is
@@ -757,9 +757,8 @@ class StokesSolver(FieldSolver):
                 switch.value[:] = value
                 A = fem_petsc.assemble_matrix(form)
                 A.assemble()
-                B = gather_csr(A)
+                data[it.name][key] = gather_submatrix(A, kept_v, cols)      # interface rows and columns only
                 A.destroy()
-                data[it.name][key] = B[kept_v][:, cols].tocsr()
         self._jacobian_data = data
         return data
 
@@ -822,9 +821,9 @@ class StokesSolver(FieldSolver):
         pressure dof per connected part, restricted to the velocity rows and columns."""
         A = fem_petsc.assemble_matrix(self._jacobian_operator_form(), bcs=self.bcs)
         A.assemble()
-        K = gather_csr(A)
+        S = condensed_matrix(A, np.concatenate([kept_v, self._schur_pressure_dofs()]),
+                                         f"{self.name} interface Jacobian")
         A.destroy()
-        S = schur_complement(K, np.concatenate([kept_v, self._schur_pressure_dofs()]))
         nv = kept_v.size
         return np.linalg.inv(S)[:nv, :nv]
 

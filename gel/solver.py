@@ -100,8 +100,8 @@ from dolfinx.fem import petsc as fem_petsc
 from femtools.functions import quadrature_measure, set_function, von_mises
 from femtools.interface import InterfaceNodes
 from femtools.krylov import gel_solver, linear_solver_choice
-from femtools.linalg import NewtonSolver, assemble_residual_vector, gather_csr, jacobian_at_rest, \
-    schur_complement
+from femtools.linalg import NewtonSolver, assemble_residual_vector, condensed_matrix, \
+    gather_entries, gather_submatrix, jacobian_at_rest
 from femtools.mesh import as_tags, tagged_facets
 from femtools.canonical import CanonicalOrder, MixedCanonical
 from femtools.solver import FieldSolver
@@ -129,23 +129,44 @@ _FIELD_INDEX = {name: i for i, name in enumerate(FIELDS)}
 _FIELD_INDEX["v_f"] = 0     # Dirichlet data for v_f are data for w (= v_f where v_s = 0)
 
 
-def _max_abs(M) -> np.ndarray:
-    """Largest |entry| of each row of a CSR matrix (column of a CSC matrix); 1 where there is none."""
-    counts = np.diff(M.indptr)
+def _inverse_row_max(M: PETSc.Mat) -> PETSc.Vec:
+    """1 / the largest |entry| of each owned row of M (1 where there is none), in M's row layout."""
+    indptr, _, values = M.getValuesCSR()
+    counts = np.diff(indptr)
     out = np.ones(counts.size)
     nonempty = counts > 0
-    if M.nnz:
-        out[nonempty] = np.maximum.reduceat(np.abs(M.data), M.indptr[:-1][nonempty])
-    return np.where(out > 0, out, 1.0)
+    if values.size:
+        out[nonempty] = np.maximum.reduceat(np.abs(values), indptr[:-1][nonempty])
+    vec = M.createVecLeft()
+    vec.array[:] = 1.0 / np.where(out > 0, out, 1.0)
+    return vec
 
-def _equilibrated(K) -> tuple:
-    """``(Dr K Dc, dr, dc)``: K (CSR) with rows, then columns, scaled by 1 / their largest |entry|."""
-    K = K.tocsr()
-    dr = 1.0 / _max_abs(K)
-    K.data *= np.repeat(dr, np.diff(K.indptr))
-    dc = 1.0 / _max_abs(K.tocsc())
-    K.data *= dc[K.indices]
-    return K, dr, dc
+
+def _equilibrate(K: PETSc.Mat) -> tuple[PETSc.Vec, PETSc.Vec]:
+    """K <- Dr K Dc in place, rows, then columns, scaled by 1 / their largest |entry|; returns
+    ``(dr, dc)`` (distributed, each rank its own rows; the columns' scales through K^T's rows)."""
+    dr = _inverse_row_max(K)
+    K.diagonalScale(L=dr)
+    Kt = K.transpose(PETSc.Mat())          # a new matrix (without one, petsc4py transposes in place)
+    dc = _inverse_row_max(Kt)
+    Kt.destroy()
+    K.diagonalScale(R=dc)
+    return dr, dc
+
+
+class _Positions:
+    """The position in G of each global dof (-1 off G), without an array of the field's size."""
+
+    def __init__(self, gamma: np.ndarray):
+        self._order = np.argsort(gamma)
+        self._sorted = gamma[self._order]
+
+    def __getitem__(self, dofs) -> np.ndarray:
+        d = np.asarray(dofs, dtype=np.int64)
+        if self._sorted.size == 0:
+            return np.full(d.shape, -1, dtype=np.int64)
+        k = np.minimum(np.searchsorted(self._sorted, d), self._sorted.size - 1)
+        return np.where(self._sorted[k] == d, self._order[k], -1)
 
 
 def _interface_set(sel, pressure) -> tuple[np.ndarray, int]:
@@ -159,13 +180,13 @@ def _interface_set(sel, pressure) -> tuple[np.ndarray, int]:
     return np.hstack([gamma_f, gamma_u]), gamma_f.size
 
 
-def _positions(pos: np.ndarray, dofs) -> np.ndarray:
+def _positions(pos: _Positions, dofs) -> np.ndarray:
     """Positions in G of (N, dim) dofs, -1 where fixed (``pos``: the position of each dof, -1 off G)."""
     d = np.asarray(dofs).ravel()
     return np.where(d >= 0, pos[np.maximum(d, 0)], -1)
 
 
-def _rows_of(pos: np.ndarray, dofs, Xin: np.ndarray) -> np.ndarray:
+def _rows_of(pos: _Positions, dofs, Xin: np.ndarray) -> np.ndarray:
     """(dim N, n_in) rows of the interface state ``Xin`` at ``dofs`` (zero where fixed)."""
     g = _positions(pos, dofs)
     out = Xin[np.maximum(g, 0)]
@@ -873,9 +894,10 @@ class PoroelasticGelSolver(FieldSolver):
             self._jacobian_form = (fem.form(ufl.replace(expand_derivatives(total), rest)), blocks, switch)
         return self._jacobian_form
 
-    def _data_derivatives(self) -> dict | None:
-        """``{(interface, kind): CSR}`` of :meth:`_data_derivative_form` on rank 0 (global W rows, global
-        columns of the collapsed w space), None on the other ranks."""
+    def _data_derivatives(self, rows: dict, columns: dict) -> dict:
+        """``{(interface, kind): CSR}``: the rows ``rows[kind]`` (global W dofs) and the columns
+        ``columns[interface]`` (global dofs of the collapsed w space) of :meth:`_data_derivative_form`'s
+        blocks, on every rank (collective; only these interface rows and columns are gathered)."""
         form, blocks, switch = self._data_derivative_form()
         A = fem_petsc.create_matrix(form)
         out = {}
@@ -886,43 +908,66 @@ class PoroelasticGelSolver(FieldSolver):
             A.zeroEntries()
             fem_petsc.assemble_matrix(A, form)
             A.assemble()
-            out[block] = gather_csr(A, root=0)
+            name, kind = block
+            picked = rows[name, "flux"] if kind == "flux" else rows["gamma"]
+            out[block] = gather_submatrix(A, picked, columns[name])
         A.destroy()
-        return out if self.mesh.comm.rank == 0 else None
+        return out
 
-    def _build_interface_jacobian(self) -> dict:
-        """See :meth:`interface_jacobian`: dX_G = -S^-1 dR_G/d(data), S the Schur complement of the
-        kept matrix onto the interface dofs G (the data act on no other row; no other row is read)."""
-        comm = self.mesh.comm
-        # -- collective part: the kept matrix and the data derivatives (on rank 0), the dofs (replicated)
-        # the kept matrix (J_reference, Dirichlet rows, interface stiffnesses) on rank 0
-        K = self._newton.reference_csr(root=0)
-        sel = {}            # (interface, field) -> (N, dim) global W dofs of w or u, -1 where fixed
+    def _interface_selection(self) -> tuple[dict, np.ndarray]:
+        """``(sel, pressure)``: (interface, field) -> (N, dim) global W dofs of w or u (-1 where fixed),
+        and the one pressure dof kept with them (replicated)."""
+        sel = {}
         for name, d in self._fluid.items():
             sel[name, "w"] = d["nodes"].global_dofs(self.W, parent=True, bcs=self.bcs)
             sel[name, "u"] = d["displacement_nodes"].global_dofs(self.W, parent=True, bcs=self.bcs)
         for name, d in self._cell.items():
             sel[name, "u"] = d["nodes"].global_dofs(self.W, parent=True, bcs=self.bcs)
         # with every interface velocity held, the flow's interior block fixes the pressure only up to a
-        # constant (a singular interior block: a garbage Schur complement that MUMPS does not report):
-        # keep one pressure dof of an interface as well (not read, no data on it)
+        # constant (a singular interior block): keep one pressure dof of an interface as well (not read,
+        # no data on it)
         interfaces = list(self._fluid.values()) + list(self._cell.values())
         pressure = (InterfaceNodes(self._sub[2][0], self.facet_tags, interfaces[0]["tags"],
                                    parent_dofs=self._sub[2][1]).global_dofs(self.W, parent=True, bcs=self.bcs)
                     if interfaces else np.empty((0, 1), np.int64))
-        pressure = pressure[pressure >= 0][:1]
+        return sel, pressure[pressure >= 0][:1]
+
+    def _condensed_kept_matrix(self, gamma: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(S, dr_G, dc_G)``: the Schur complement onto G (in the order of ``gamma``) of Dr K Dc, K the
+        kept matrix (J_reference, Dirichlet rows, interface stiffnesses), rows and columns equilibrated
+        (in the paper's units the fluid rows are ~Ca times the network rows); distributed (collective)."""
+        K = self._newton.reference_matrix()
+        dr, dc = _equilibrate(K)
+        order = np.argsort(gamma)
+        S = np.empty((gamma.size, gamma.size))
+        S[np.ix_(order, order)] = condensed_matrix(K, gamma[order], f"{self.name} interface Jacobian")
+        out = S, gather_entries(dr, gamma), gather_entries(dc, gamma)
+        for obj in (K, dr, dc):
+            obj.destroy()
+        return out
+
+    def _build_interface_jacobian(self) -> dict:
+        """See :meth:`interface_jacobian`: dX_G = -S^-1 dR_G/d(data), S the Schur complement of the
+        kept matrix onto the interface dofs G (the data act on no other row; no other row is read)."""
+        comm = self.mesh.comm
+        # -- collective part, distributed: the condensed matrix and the data derivatives' interface rows
+        sel, pressure = self._interface_selection()
+        gamma, nf = _interface_set(sel, pressure)
+        condensed = self._condensed_kept_matrix(gamma)
         derivative, flux_rows = None, {}
         if self._fluid:
             V_vf = self._sub[0][0]
             columns = {name: d["nodes"].global_dofs(V_vf).ravel() for name, d in self._fluid.items()}
-            derivative = (self._data_derivatives(), columns)
             if self.kinematics == "finite":
                 flux_rows = {name: d["nodes"].global_dofs(self.W, parent=True).ravel()
                              for name, d in self._fluid.items()}
+            rows = {"gamma": gamma, **{(name, "flux"): r for name, r in flux_rows.items()}}
+            derivative = self._data_derivatives(rows, columns)
+        # -- dense algebra of interface size on rank 0, broadcast
         result, error = None, None
         if comm.rank == 0:
             try:
-                result = self._interface_jacobian_blocks(K, sel, pressure, derivative, flux_rows)
+                result = self._interface_jacobian_blocks(condensed, gamma, nf, sel, derivative, flux_rows)
             except Exception as exc:            # every rank raises alike
                 error = exc
         if comm.size > 1:
@@ -933,24 +978,18 @@ class PoroelasticGelSolver(FieldSolver):
             v.setflags(write=False)
         return result
 
-    def _interface_jacobian_blocks(self, K, sel, pressure, derivative, flux_rows) -> dict:
-        """Rank-local dense algebra of :meth:`_build_interface_jacobian`."""
-        # rows and columns equilibrated (in the paper's units the fluid rows are ~Ca times the network
-        # rows; MUMPS then runs out of workspace): the Schur complement of Dr K Dc is Dr_G S Dc_G
-        K, dr, dc = _equilibrated(K)
+    def _interface_jacobian_blocks(self, condensed, gamma, nf, sel, derivative, flux_rows) -> dict:
+        """Rank-local dense algebra of :meth:`_build_interface_jacobian` (``condensed``: its
+        :meth:`_condensed_kept_matrix`; the Schur complement of Dr K Dc is Dr_G S Dc_G)."""
+        S, dr_g, dc_g = condensed
         # G = [flow dofs (w on fluid interfaces, one p), network dofs (u on all interfaces)]
-        gamma, nf = _interface_set(sel, pressure)
         ng = gamma.size
-        order = np.argsort(gamma)
-        S = np.empty((ng, ng))
-        S[np.ix_(order, order)] = schur_complement(K, gamma[order])      # rows/columns in the order of gamma
-        pos = np.full(K.shape[0], -1, dtype=np.int64)
-        pos[gamma] = np.arange(ng)
+        pos = _Positions(gamma)
         keys, columns, n_flow_inputs = self._input_columns(sel, gamma, pos, derivative)
         widths = [c.shape[1] for c in columns]
-        Dm = dr[gamma][:, None] * (np.hstack(columns) if columns else np.zeros((ng, 0)))
+        Dm = dr_g[:, None] * (np.hstack(columns) if columns else np.zeros((ng, 0)))
         X = _solve_flow_first(S, Dm, nf, sum(widths[:n_flow_inputs]))
-        X *= -dc[gamma][:, None]
+        X *= -dc_g[:, None]
         response = dict(zip(keys, np.split(X, np.cumsum(widths)[:-1], axis=1) if keys else []))
         for name in self._cell:
             force = response[name, "force"]
@@ -967,11 +1006,11 @@ class PoroelasticGelSolver(FieldSolver):
         first; returns ``(keys, columns, number of fluid inputs)``."""
         keys, columns = [], []
         if derivative is not None:
-            B, cmap = derivative
+            B = derivative
             for name in self._fluid:
                 for key in ("traction", "velocity"):
                     keys.append((name, key))
-                    columns.append(B[name, key][gamma][:, cmap[name]].toarray())
+                    columns.append(B[name, key].toarray())
         n_flow_inputs = len(keys)
         for name in self._cell:
             g = _positions(pos, sel[name, "u"])
@@ -991,8 +1030,7 @@ class PoroelasticGelSolver(FieldSolver):
         for name, d in self._fluid.items():
             flux = None
             if flux_rows:
-                B, cmap = derivative
-                flux = B[name, "flux"][flux_rows[name]][:, cmap[name]].toarray()   # (1 - phi_s0) (. n, psi n)
+                flux = derivative[name, "flux"].toarray()   # (1 - phi_s0) (. n, psi n)
             n_out = self.dim * d["nodes"].size
             for key_in in response:
                 Xin = response[key_in]

@@ -48,3 +48,17 @@ def run_mpi(script: str, nprocs: int = 2, args: list[str] | None = None, timeout
     if not lines:
         raise AssertionError(f"{' '.join(cmd)} printed nothing; stderr:\n{proc.stderr[-3000:]}")
     return json.loads(lines[-1])
+
+
+def assert_same_on_one_and_two_ranks(script: str, rtol: float = 1e-9) -> None:
+    """Run ``script`` on 1 and 2 ranks; every number it reports agrees to ``rtol`` of its largest value."""
+    import numpy as np
+
+    one, two = run_mpi(script, 1), run_mpi(script, 2)
+    assert two["ranks"] == 2
+    for key, ref in one.items():
+        if key == "ranks":
+            continue
+        a, b = np.asarray(ref, dtype=float), np.asarray(two[key], dtype=float)
+        assert a.shape == b.shape, key
+        assert np.abs(a - b).max() <= rtol * max(np.abs(a).max(), 1e-300), (key, a, b)

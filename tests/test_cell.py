@@ -24,7 +24,7 @@ from dolfinx import fem
 
 from cell import NeoHookeanCellSolver, meshes
 from femtools.functions import integrate
-from mpi_run import run_mpi
+from mpi_run import assert_same_on_one_and_two_ranks
 
 MU, LMBDA = 1.0, 1.5  # the moduli of verification.md 5d
 
@@ -369,14 +369,7 @@ def test_scaling_paths_agree(block, strain):
 @pytest.mark.mpi
 @pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="launches its own mpirun")
 def test_same_answer_on_one_and_two_ranks():
-    one, two = run_mpi("cell_mpi.py", 1), run_mpi("cell_mpi.py", 2)
-    assert two["ranks"] == 2
-    for key, ref in one.items():
-        if key == "ranks":
-            continue
-        a, b = np.asarray(ref, dtype=float), np.asarray(two[key], dtype=float)
-        assert a.shape == b.shape, key
-        assert np.abs(a - b).max() <= 1e-9 * max(np.abs(a).max(), 1e-300), (key, a, b)
+    assert_same_on_one_and_two_ranks("cell_mpi.py")
 
 
 # -- factorise once ------------------------------------------------------------------

@@ -39,7 +39,7 @@ from dolfinx import mesh as dmesh
 
 from cell import NeoHookeanCellSolver, meshes
 from femtools.functions import integrate
-from mpi_run import run_mpi
+from mpi_run import assert_same_on_one_and_two_ranks
 
 E_L, NU_L, A_L, B_L = 1.0, 0.3, 1.0, 1.5
 MU_L, LMBDA_L = E_L / (2 * (1 + NU_L)), E_L * NU_L / ((1 + NU_L) * (1 - 2 * NU_L))
@@ -392,11 +392,4 @@ def test_invalid_3d_input():
 @pytest.mark.mpi
 @pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="launches its own mpirun")
 def test_same_answer_on_one_and_two_ranks_3d():
-    one, two = run_mpi("cell3d_mpi.py", 1), run_mpi("cell3d_mpi.py", 2)
-    assert two["ranks"] == 2
-    for key, ref in one.items():
-        if key == "ranks":
-            continue
-        a, b = np.asarray(ref, dtype=float), np.asarray(two[key], dtype=float)
-        assert a.shape == b.shape, key
-        assert np.abs(a - b).max() <= 1e-9 * max(np.abs(a).max(), 1e-300), (key, a, b)
+    assert_same_on_one_and_two_ranks("cell3d_mpi.py")

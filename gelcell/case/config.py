@@ -25,7 +25,10 @@ Tables (``examples/case_baseline_shear.toml``; docs/configuration.md):
 * ``[case] [physics] [dimensional] [cell] [geometry] [mesh]``: the case
   (:class:`~gelcell.case.parameters.CaseParameters`);
 * ``[solver] method`` (``"partitioned"`` or ``"monolithic"``), ``gamma2``
-  (the split on Γ2: ``"schur"``, ``"dirichlet"`` or ``"robin"``);
+  (the split on Γ2: ``"schur"``, ``"dirichlet"`` or ``"robin"``), ``kind``
+  (the field solvers' linear solves: ``"direct"``, ``"iterative"`` or
+  ``"auto"``, :mod:`gelcell.coupled.solverchoice`) and ``[solver.petsc.FIELD]``
+  (PETSc options of one field's solve, FIELD one of :data:`PETSC_FIELDS`);
 * ``[coupling]``: the coupling library's table (docs/coupling.md); what it
   leaves out is the device's default (``gelcell.coupled.defaults``);
 * ``[time]``: :class:`~gelcell.case.timesettings.TimeSettings`;
@@ -46,10 +49,15 @@ from gelcell.case.parameters import DEFAULT_GAMMA2, GAMMA2, CaseParameters
 from gelcell.case.timesettings import TimeSettings
 from gelcell.errors import ParameterError
 
-__all__ = ["RunConfig", "SolverSettings", "OutputSettings", "SweepSettings", "resolve", "load_run_config",
+__all__ = ["RunConfig", "SolverSettings", "SOLVER_KINDS", "PETSC_FIELDS",
+           "OutputSettings", "SweepSettings", "resolve", "load_run_config",
            "merge_tables", "METHODS", "SWEEPS"]
 
 METHODS = ("partitioned", "monolithic")
+#: ``solver.kind``: the field solvers' linear solves (auto: by dimension and size, gelcell.coupled.solverchoice)
+SOLVER_KINDS = ("direct", "iterative", "auto")
+#: the fields of ``[solver.petsc.FIELD]`` (the fluid's options also reach its mesh motion)
+PETSC_FIELDS = ("fluid", "gel", "cell")
 #: the parameters ``gelcell sweep`` varies
 SWEEPS = ("ca", "cell-moduli", "gel-moduli", "e")
 
@@ -69,20 +77,50 @@ def _check_keys(table: str, block: typing.Mapping, known: typing.Iterable[str], 
 
 @dataclasses.dataclass(frozen=True)
 class SolverSettings:
-    """``[solver]``: the partitioned coupling or the monolithic reference, and the split on Γ2."""
+    """``[solver]``: the partitioned coupling or the monolithic reference, the split on Γ2, and the
+    field solvers' linear solves with their PETSc options per field."""
 
     method: str = "partitioned"
     gamma2: str = DEFAULT_GAMMA2
+    kind: str = "direct"
+    petsc: dict = dataclasses.field(default_factory=dict)
 
     def __post_init__(self):
         if self.method not in METHODS:
             raise ParameterError(f"parameter 'solver.method' = {self.method!r} is not one of {list(METHODS)}")
         if self.gamma2 not in GAMMA2:
             raise ParameterError(f"parameter 'solver.gamma2' = {self.gamma2!r} is not one of {list(GAMMA2)}")
+        if self.kind not in SOLVER_KINDS:
+            raise ParameterError(f"parameter 'solver.kind' = {self.kind!r} is not one of {list(SOLVER_KINDS)}")
+        if self.monolithic and self.kind == "iterative":
+            raise ParameterError("parameter 'solver.kind' = 'iterative' (--solver iterative): the monolithic "
+                                 "reference (solver.method = 'monolithic') solves with MUMPS only; give 'direct' "
+                                 "or 'auto' (which picks direct for it)")
+        object.__setattr__(self, "petsc", _petsc_tables(self.petsc))
+        if self.monolithic and self.petsc:
+            raise ParameterError(f"parameter 'solver.petsc.{next(iter(self.petsc))}': PETSc options are for the "
+                                 f"field solvers of the partitioned run, not the monolithic reference")
 
     @property
     def monolithic(self) -> bool:
         return self.method == "monolithic"
+
+
+def _petsc_tables(petsc) -> dict:
+    """``[solver.petsc.FIELD]`` checked: FIELD one of PETSC_FIELDS, each a table of option = string/number/bool."""
+    if not isinstance(petsc, typing.Mapping):
+        raise ParameterError(f"parameter 'solver.petsc' = {petsc!r} must be a table of tables "
+                             f"[solver.petsc.FIELD], FIELD one of {list(PETSC_FIELDS)}")
+    out = {}
+    for field, options in petsc.items():
+        if field not in PETSC_FIELDS:
+            raise ParameterError(f"unknown key 'solver.petsc.{field}' (known: {list(PETSC_FIELDS)})")
+        if not isinstance(options, typing.Mapping) or not all(
+                isinstance(v, (str, int, float, bool)) for v in options.values()):
+            raise ParameterError(f"parameter 'solver.petsc.{field}' = {options!r} must be a table of PETSc options "
+                                 f"(option = string, number or boolean, e.g. ksp_rtol = 1e-12)")
+        out[field] = dict(options)
+    return out
 
 
 @dataclasses.dataclass(frozen=True)
@@ -150,7 +188,7 @@ class RunConfig:
         """The case-file tables of this configuration; ``coupling``: the table to write instead of
         :attr:`coupling` (the resolved one a run used)."""
         tables = self.case.to_input_dict()
-        tables["solver"] = dataclasses.asdict(self.solver)
+        tables["solver"] = {k: v for k, v in dataclasses.asdict(self.solver).items() if v != {}}
         tables["coupling"] = copy.deepcopy(dict(self.coupling if coupling is None else coupling))
         tables["time"] = {k: v for k, v in self.time.to_dict().items() if v is not None}
         tables["output"] = dataclasses.asdict(self.output)

@@ -14,22 +14,25 @@ import os
 from gelcell.case.ranges import check_range, format_value, out_of_range, raise_problems, range_text
 from gelcell.errors import ParameterError
 
-__all__ = ["ShearGeometry", "NormalGeometry", "FileGeometry", "FileContents", "GEOMETRY_SUFFIXES"]
+__all__ = ["ShearGeometry", "NormalGeometry", "FileGeometry", "FileContents", "GEOMETRY_SUFFIXES", "WALLS"]
+
+#: the floor and lid of a 3D device: no-slip walls (the gel bonded), or symmetry planes (the slab)
+WALLS = ("noslip", "symmetric")
 
 
 def _cells_tuple(value) -> tuple:
-    """``cells`` as a tuple of (x, y, d) float triples (from a TOML list or the command line)."""
+    """``cells`` as a tuple of float tuples (x, y, d), or (x, y, z, d) in 3D (from a TOML list or the command line)."""
     if value is None:
         return ()
     try:
         cells = tuple(tuple(float(v) for v in c) for c in value)
     except (TypeError, ValueError):
         raise ParameterError(f"parameter 'cells' = {value!r} must be a list of [x, y, d] "
-                             f"(centre and diameter, units of L0)") from None
+                             f"(centre and diameter, units of L0; [x, y, z, d] in 3D)") from None
     for k, c in enumerate(cells):
-        if len(c) != 3:
+        if len(c) not in (3, 4):
             raise ParameterError(f"parameter 'cells[{k}]' = {list(c)!r} must be [x, y, d] "
-                                 f"(centre and diameter, units of L0)")
+                                 f"(centre and diameter, units of L0; [x, y, z, d] in 3D)")
     return cells
 
 
@@ -63,17 +66,82 @@ def _cell_list_problems(cells, h_cell: float, clearance) -> list[str]:
 
 
 class _Cells:
-    """The cells of a built-in geometry: ``cells`` if given, else its one cell (``cell_centre``, ``cell_diameter``)."""
+    """The cells of a built-in geometry: ``cells`` if given, else its one cell (``cell_centre``, ``cell_diameter``).
+
+    A 3D device (``chip_height`` set, model.md section 10) is the planar device
+    extruded over z ∈ [0, chip_height], computed on z ∈ [0, chip_height/2] with a
+    symmetry plane at mid-height; its cells are spheres centred at mid-height,
+    given as (x, y, d) or (x, y, z, d) with z = chip_height/2.
+    """
 
     def cell_list(self) -> list[tuple[float, float, float]]:
-        """Centre and diameter of every (whole) cell."""
+        """Centre in the (x, y) plane and diameter of every (whole) cell."""
         if self.cells:
-            return [tuple(c) for c in self.cells]
+            return [(c[0], c[1], c[-1]) for c in self.cells]
         return [(*self.cell_centre, self.cell_diameter)]
+
+    def cell_list_3d(self) -> list[tuple[float, float, float, float]]:
+        """Centre (x, y, z) and diameter of every cell of a 3D device (z = chip_height/2 unless given)."""
+        z_mid = 0.5 * self.chip_height
+        given = self.cells or ((),) * len(self.cell_list())
+        return [(x, y, c[2] if len(c) == 4 else z_mid, d) for (x, y, d), c in zip(self.cell_list(), given)]
 
     @property
     def min_cell_diameter(self) -> float:
         return min(c[2] for c in self.cell_list())
+
+    @property
+    def dimension(self) -> int:
+        """3 with a chip height (model.md section 10), else 2 (planar, plane strain)."""
+        return 2 if self.chip_height is None else 3
+
+    def chip_problems(self) -> list[str]:
+        """``chip_height`` > 0 (or None: planar), ``walls`` one of :data:`WALLS`, 4-entry cells only in 3D."""
+        p: list[str] = []
+        if self.chip_height is not None:
+            check_range(p, "chip_height", self.chip_height, 0.0, why="the chip's height H in units of L0 "
+                        "(model.md section 10; the project's default for a 3D device is 0.4); "
+                        "leave it out for the planar device")
+        if self.walls not in WALLS:
+            p.append(f"parameter 'walls' = {self.walls!r} is not one of {list(WALLS)} (noslip: the floor and "
+                     f"lid are walls; symmetric: they are symmetry planes, the slab of model.md section 10)")
+        elif self.chip_height is None and self.walls != "noslip":
+            p.append(f"parameter 'walls' = {self.walls!r}: the floor and lid belong to a 3D device "
+                     f"(give chip_height); the planar device has none")
+        if self.chip_height is None:
+            for k, c in enumerate(self.cells):
+                if len(c) == 4:
+                    p.append(f"parameter 'cells[{k}]' = {list(c)!r}: a cell [x, y, z, d] needs a 3D device "
+                             f"(chip_height); a planar cell is [x, y, d]")
+        return p
+
+    def to_input_dict(self) -> dict:
+        """The ``[geometry]`` table; a planar device's has no ``chip_height`` and ``walls`` (as before them)."""
+        out = dataclasses.asdict(self)
+        if self.chip_height is None:
+            del out["chip_height"], out["walls"]
+        return out
+
+    def height_problems(self, h_cell: float) -> list[str]:
+        """3D: each cell centred at mid-height, its sphere a gap ≥ ``h_cell`` off the floor and lid."""
+        if self.chip_height is None:
+            return []
+        H, p = self.chip_height, []
+        names = [f"cells[{k}]" for k in range(len(self.cells))] if self.cells else [None]
+        for name, (_, _, z, d) in zip(names, self.cell_list_3d()):
+            if abs(z - 0.5 * H) > 1e-12 * max(1.0, H):
+                p.append(out_of_range(f"{name}.z", z, range_text(0.5 * H, 0.5 * H, True, True),
+                                      why=f"a cell is centred at mid-height z = chip_height/2, where the half "
+                                          f"height [0, {format_value(0.5 * H)}] computed has its symmetry plane"))
+                continue
+            d_max = H - 2 * h_cell
+            if not d <= d_max:
+                p.append(out_of_range(f"{name}.d" if name else "cell_diameter", d,
+                                      range_text(0.0, d_max, hi_closed=True),
+                                      why=f"the sphere would reach through the floor z = 0 and the lid "
+                                          f"z = {format_value(H)}: it must keep a gap of at least one cell "
+                                          f"element size ({format_value(h_cell)}) to them"))
+        return p
 
 
 @dataclasses.dataclass(frozen=True)
@@ -98,6 +166,10 @@ class ShearGeometry(_Cells):
     cell_offset_x: float = 0.0
     #: several cells: ((x, y, d), ...) centres and diameters; empty: the one cell of e, cell_offset_x
     cells: tuple = ()
+    #: 3D device: the chip's height H (z ∈ [0, H], model.md section 10); None: the planar device
+    chip_height: float | None = None
+    #: 3D device: the floor and lid are "noslip" walls or "symmetric" planes (the slab)
+    walls: str = "noslip"
 
     @property
     def channel_length(self) -> float:
@@ -133,7 +205,7 @@ class ShearGeometry(_Cells):
         check_range(p, "half_angle", self.half_angle, 0.0, math.pi / 2, hi_closed=True, unit="rad")
         for name in ("e", "cell_offset_x"):
             check_range(p, name, getattr(self, name))
-        return p
+        return p + self.chip_problems()
 
     def placement_problems(self, h_cell: float) -> list[str]:
         """The cell must lie inside the gel with a gap ≥ ``h_cell`` to Γ1 and the bowl."""
@@ -142,7 +214,7 @@ class ShearGeometry(_Cells):
 
             def clearance(x, y, r):
                 return min((-y - r, "Γ1 (y = 0)"), (self.radius - math.hypot(x - xb, y - yb) - r, "the bowl"))
-            return _cell_list_problems(self.cells, h_cell, clearance)
+            return _cell_list_problems(self.cell_list(), h_cell, clearance)
         r, R = 0.5 * self.cell_diameter, self.radius
         _, yb = self.bowl_centre
         gap = r + h_cell
@@ -189,6 +261,10 @@ class NormalGeometry(_Cells):
     #: several cells: ((x, y, d), ...); a cell centred on y = height is cut by the symmetry line
     #: (its lower half is in the domain); empty: the one cell of e
     cells: tuple = ()
+    #: 3D device: the chip's height H (z ∈ [0, H], model.md section 10); None: the planar device
+    chip_height: float | None = None
+    #: 3D device: the floor and lid are "noslip" walls or "symmetric" planes (the slab)
+    walls: str = "noslip"
 
     def on_symmetry_line(self, y: float) -> bool:
         """Whether a cell centred at height ``y`` is cut by the symmetry line y = height (half a cell)."""
@@ -214,7 +290,7 @@ class NormalGeometry(_Cells):
             check_range(p, name, getattr(self, name), 0.0)
         for name in ("post_clearance", "e"):     # post_clearance: see wall_problems
             check_range(p, name, getattr(self, name))
-        return p
+        return p + self.chip_problems()
 
     def wall_problems(self, h_wall: float) -> list[str]:
         """Posts must not touch Γ1/Γ3, each other or the top symmetry line."""
@@ -267,7 +343,7 @@ class NormalGeometry(_Cells):
                                             f"may cross it)"))
                 gaps += [(math.hypot(x - xp, y) - rp - r, "a post") for xp in self.post_centres]
                 return min(gaps)
-            return _cell_list_problems(self.cells, h_cell, clearance)
+            return _cell_list_problems(self.cell_list(), h_cell, clearance)
         r = 0.5 * self.cell_diameter
         why = (f"the cell (diameter {format_value(self.cell_diameter)}) must lie strictly inside the gel, "
                f"with a gap to Γ1, Γ3 and the posts of at least one cell element size "

@@ -153,6 +153,7 @@ class CaseParameters:
             problems += self._cell_size_problems()
             raise_problems(problems)
             problems += self.geometry.placement_problems(self.element_sizes()["h_cell"])
+            problems += self.geometry.height_problems(self.element_sizes()["h_cell"])
         raise_problems(problems)
 
     def _cell_size_problems(self) -> list[str]:
@@ -386,7 +387,7 @@ class CaseParameters:
                 "physics": dataclasses.asdict(self.physics),
                 "dimensional": dataclasses.asdict(self.dimensional),
                 "cell": dataclasses.asdict(self.cell),
-                "geometry": g.to_input_dict() if isinstance(g, FileGeometry) else dataclasses.asdict(g),
+                "geometry": g.to_input_dict(),
                 "mesh": dataclasses.asdict(self.mesh)}
 
     def to_dict(self) -> dict:

@@ -14,7 +14,7 @@ import argparse
 import os
 import typing
 
-from gelcell.case import CASES, GAMMA2, SWEEPS
+from gelcell.case import CASES, GAMMA2, SOLVER_KINDS, SWEEPS
 from gelcell.errors import ParameterError
 
 __all__ = ["build_parser", "command_line_keys", "OPTION_KEYS", "SCHEMES", "ACCELERATIONS"]
@@ -92,6 +92,7 @@ OPTION_KEYS: dict[str, tuple[str, typing.Callable]] = {
     "kinematics": ("case.kinematics", str),
     "monolithic": ("solver.method", lambda on: "monolithic" if on else "partitioned"),
     "gamma2": ("solver.gamma2", str),
+    "solver": ("solver.kind", str),
     "scheme": ("coupling.scheme", lambda s: f"{s}-implicit" if s in ("serial", "parallel") else s),
     "acceleration": ("coupling.acceleration.type", str),
     "jacobian_prior": ("coupling.acceleration.jacobian_prior", str),
@@ -188,6 +189,11 @@ def _add_solver_arguments(p: argparse.ArgumentParser) -> None:
                         "(mesh-size >= ~0.7), none otherwise (docs/coupling.md); time-dependent runs factorise it "
                         "per step size and scheme, not cached on disk (docs/transient.md) "
                         "(coupling.acceleration.jacobian_prior)")
+    g.add_argument("--solver", choices=SOLVER_KINDS, default=None,
+                   help="the field solvers' linear solves: direct (MUMPS; default), iterative (Krylov with "
+                        "multigrid, femtools.krylov) or auto (direct in 2D and for small 3D fields, iterative "
+                        "above a number of unknowns per field; the run prints what it picked); the monolithic "
+                        "reference is direct only (solver.kind; PETSc options per field: [solver.petsc.FIELD])")
     _flag(g, "--monolithic", help="solve the monolithic reference (all fields in one Newton system) instead "
                                   "(solver.method = \"monolithic\")")
     _flag(g, "--quiet", help="no per-iteration coupling progress (output.progress = false)")

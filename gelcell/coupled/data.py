@@ -49,18 +49,22 @@ GEL_TO_FLUID = ("gel_traction", "mixture_velocity", "interstitial_velocity")
 GEL_TO_MOVING_FLUID = ("gel_traction", "normal_flux", "interstitial_velocity", "displacement")
 
 
-def coupling_data(boundaries: DeviceBoundaries, gamma2: str = "dirichlet", kinematics: str = "small") -> list[cp.Data]:
-    """The coupling data of a device (see the module docstring)."""
+def coupling_data(boundaries: DeviceBoundaries, gamma2: str = "dirichlet", kinematics: str = "small",
+                  dim: int = 2) -> list[cp.Data]:
+    """The coupling data of a device (see the module docstring); vectors of ``dim`` (2 or 3) components,
+    the dimension of the device's meshes."""
+    if dim not in (2, 3):
+        raise ValueError(f"coupling_data: dim must be 2 or 3 (the meshes' dimension), got {dim!r}")
     data = []
     to_fluid = GEL_TO_MOVING_FLUID if kinematics == "finite" else GEL_TO_FLUID
     for g in boundaries.fluid_interfaces:
-        data += [cp.Data(f"{g}/{k}", mesh=g, dim=2, writer="fluid", readers=("gel",)) for k in FLUID_TO_GEL]
-        data += [cp.Data(f"{g}/{k}", mesh=g, dim=2, writer="gel", readers=("fluid",)) for k in to_fluid]
+        data += [cp.Data(f"{g}/{k}", mesh=g, dim=dim, writer="fluid", readers=("gel",)) for k in FLUID_TO_GEL]
+        data += [cp.Data(f"{g}/{k}", mesh=g, dim=dim, writer="gel", readers=("fluid",)) for k in to_fluid]
     for g in boundaries.cell_interfaces:
-        data += [cp.Data(f"{g}/displacement", mesh=g, dim=2, writer="gel", readers=("cell",)),
-                 cp.Data(f"{g}/force", mesh=g, dim=2, writer="cell", readers=("gel",))]
+        data += [cp.Data(f"{g}/displacement", mesh=g, dim=dim, writer="gel", readers=("cell",)),
+                 cp.Data(f"{g}/force", mesh=g, dim=dim, writer="cell", readers=("gel",))]
         if gamma2 == "robin":
-            data.append(cp.Data(f"{g}/gel_force", mesh=g, dim=2, writer="gel", readers=("cell",)))
+            data.append(cp.Data(f"{g}/gel_force", mesh=g, dim=dim, writer="gel", readers=("cell",)))
         elif gamma2 == "schur":
-            data.append(cp.Data(f"{g}/cell_displacement", mesh=g, dim=2, writer="cell", readers=("gel",)))
+            data.append(cp.Data(f"{g}/cell_displacement", mesh=g, dim=dim, writer="cell", readers=("gel",)))
     return data

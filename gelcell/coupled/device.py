@@ -26,8 +26,9 @@ from gel import GelParameters, PoroelasticGelSolver
 from gelcell.case import DEFAULT_GAMMA2, GAMMA2, CaseParameters
 from gelcell.coupled import priorcache
 from gelcell.coupled.data import coupling_data
-from gelcell.coupled.defaults import (AUTO_PRIOR_MAX_UNKNOWNS, STEADY_SOLVER_OPTIONS, TRANSIENT_PRIOR,
-                                      coupling_config, default_gamma2_coefficient, default_robin_coefficient)
+from gelcell.coupled import solverchoice
+from gelcell.coupled.defaults import (AUTO_PRIOR_MAX_UNKNOWNS, TRANSIENT_PRIOR, coupling_config,
+                                      default_gamma2_coefficient, default_robin_coefficient)
 from gelcell.coupled.participants import CellParticipant, FluidParticipant, GelParticipant, MovingFluidParticipant
 from gelcell.geometry import described
 from gelcell.geometry.meshes import build_meshes
@@ -50,12 +51,17 @@ class Device:
         transient: build the time-dependent gel (see the module docstring);
             ``time_scheme`` ``"be"`` or ``"bdf2"``, ``inflow`` the waveform
             f(t) that multiplies the inflow (None: 1).
+        solver: the fields' linear solves, ``"direct"``, ``"iterative"`` or
+            ``"auto"`` (:mod:`gelcell.coupled.solverchoice`; what each field
+            got: :attr:`solver_kinds`); ``petsc_options``: ``{field: {option:
+            value}}``, PETSc options of one field's solver.
     """
 
     def __init__(self, params: CaseParameters, comm: MPI.Comm = MPI.COMM_WORLD,
                  robin_coefficient: float | None = None, gamma2: str = DEFAULT_GAMMA2,
                  transient: bool = False, time_scheme: str = "be",
-                 inflow: typing.Callable[[float], float] | None = None):
+                 inflow: typing.Callable[[float], float] | None = None, solver: str = "direct",
+                 petsc_options: typing.Mapping[str, typing.Mapping] | None = None):
         t0 = time.perf_counter()
         params = described(params)
         params.validate()
@@ -68,14 +74,17 @@ class Device:
         self.boundaries = self.layout.boundaries
         self.mesh_time = time.perf_counter() - t0
         t0 = time.perf_counter()
-        # time-dependent runs keep PETSc's automatic choices (STEADY_SOLVER_OPTIONS: steady runs)
-        options = None if transient else dict(STEADY_SOLVER_OPTIONS)
-        self.fluid = self._fluid_solver(options)
-        self.gel = self._gel_solver(options)
-        self.cell = self._cell_solver(options) if params.with_cell else None
+        self.solver = solver
+        self.solver_kinds = self._choose_solvers(solver)
+        user = dict(petsc_options or {})
+        # time-dependent runs keep PETSc's automatic choices (STEADY_SOLVER_OPTIONS: steady direct solves)
+        options = {f: solverchoice.field_options(k, self.transient, user.get(f)) for f, k in self.solver_kinds.items()}
+        self.fluid = self._fluid_solver(options["fluid"])
+        self.gel = self._gel_solver(options["gel"])
+        self.cell = self._cell_solver(options["cell"]) if params.with_cell else None
         self.setup_time = time.perf_counter() - t0
         self.participants = self._participants(time_scheme, inflow)
-        self.data = coupling_data(self.boundaries, gamma2, self.kinematics)
+        self.data = coupling_data(self.boundaries, gamma2, self.kinematics, dim=self.fluid.mesh.geometry.dim)
         self.scheme: cp.CouplingScheme | None = None
         self.result: cp.CouplingResult | None = None
         #: where the last solve's linearized prior came from: "computed", "disk cache", "reused" or None
@@ -93,6 +102,13 @@ class Device:
         self.gamma2 = gamma2
         self.kappa = default_gamma2_coefficient(params)
 
+    def _choose_solvers(self, solver: str) -> dict[str, str]:
+        """``{field: "direct" | "iterative"}`` of the fields this device has, under ``solver``."""
+        if solver not in solverchoice.KINDS:
+            raise ValueError(f"solver = {solver!r} must be one of {', '.join(solverchoice.KINDS)}")
+        fields = [f for f in solverchoice.FIELDS if f != "cell" or self.params.with_cell]
+        return {f: solverchoice.choose(solver, self.meshes.region(f)[0], f) for f in fields}
+
     def _fluid_solver(self, options: dict | None) -> StokesSolver:
         """Stokes on the fluid mesh, Robin conditions on each fluid-gel interface."""
         b, params = self.boundaries, self.params
@@ -106,7 +122,7 @@ class Device:
                       for name, tag in b.fluid_interfaces.items()}
         return fluid_class(mesh, tags, viscosity=params.physics.ca / params.stress_scale,
                            velocity_bcs=b.fluid_velocity, component_bcs=b.fluid_component,
-                           interfaces=interfaces, petsc_options=options, **extra)
+                           interfaces=interfaces, petsc_options=options, solver=self.solver_kinds["fluid"], **extra)
 
     def _gel_solver(self, options: dict | None) -> PoroelasticGelSolver:
         """The poroelastic gel on the gel mesh, with its walls, symmetry lines and interfaces."""
@@ -119,7 +135,7 @@ class Device:
             mesh, tags, self.gel_parameters, no_slip=b.gel_no_slip, symmetry=b.gel_symmetry,
             fluid_interfaces=b.fluid_interfaces, cell_interfaces=b.cell_interfaces,
             transient=self.transient, kinematics=self.kinematics, linear_path=True, petsc_options=options,
-            newton_rtol=NEWTON_RTOL)
+            newton_rtol=NEWTON_RTOL, solver=self.solver_kinds["gel"])
 
     def _cell_solver(self, options: dict | None) -> NeoHookeanCellSolver:
         """The neo-Hookean cells; under ``gamma2="robin"`` each with its own surface's stiffness."""
@@ -134,7 +150,8 @@ class Device:
             mesh, tags, mu=params.mu_c, lmbda=params.lambda_c, stress_scale=params.stress_scale,
             displacement_scale=params.displacement_scale,
             interfaces=None if robin else b.cell_interfaces, robin_interfaces=robin,
-            symmetry=b.cell_symmetry, linear_path=True, petsc_options=options, newton_rtol=NEWTON_RTOL)
+            symmetry=b.cell_symmetry, linear_path=True, petsc_options=options, newton_rtol=NEWTON_RTOL,
+            solver=self.solver_kinds["cell"])
 
     def _participants(self, time_scheme: str, inflow) -> list:
         """The coupling participants: fluid, gel and (with a cell) the cell."""
@@ -157,7 +174,7 @@ class Device:
             K = self.cell.interface_stiffness(g)
             # the gel's node order (the data's "matching" mapping): P K P^T, P per component
             P = cp.build_mapping("matching", self.cell.interface_points(g), self.gel.interface_points(g)).matrix
-            P2 = np.kron(P.toarray(), np.eye(2))
+            P2 = np.kron(P.toarray(), np.eye(self.gel.mesh.geometry.dim))
             stiffnesses[g] = P2 @ K @ P2.T
         self.gel.set_interface_stiffnesses(stiffnesses)
         self.setup_time += time.perf_counter() - t0

@@ -10,6 +10,13 @@ out of the gel).  The device's own coupling machinery runs it: the real
 ``coupling_data`` and ``coupling_config``, iterated by ``coupling.build_scheme``.
 Only the geometry and the outer boundary conditions are this module's.
 
+The slab (``LayerDevice(..., depth=W)``): the same layer extruded to
+0 < z < W on tetrahedra, with symmetry conditions on the z faces (tags
+Tag.FLOOR z = 0 and Tag.SYMMETRY_MID z = W, as the 3D devices' slab): zero normal velocity, network displacement and
+flux (V_z = v_f,z = u_z = 0) and zero tangential traction (natural).  The
+fully developed solution has no z component and does not depend on z, so
+it solves the slab exactly, and the 1D closed forms below hold unchanged.
+
 Three fully developed (x-independent) steady flows (``LayerCase.flow``):
 
     "poiseuille"   a uniform body force G e_x drives both phases; lid at rest
@@ -60,23 +67,28 @@ import numpy as np
 from mpi4py import MPI
 
 import ufl
-from dolfinx import mesh as dmesh
+from dolfinx import fem, mesh as dmesh
 
 import coupling as cp
 from femtools.functions import integrate
 from femtools.interface import InterfaceNodes
+from femtools.timestepping import WindowClock
 from femtools.mesh import BOTTOM, LEFT, RIGHT, TOP, rectangle_mesh
 from fluid import FluidInterface, StokesSolver
 from gel import GelParameters, PoroelasticGelSolver
 from gelcell.coupled.data import coupling_data
 from gelcell.coupled.defaults import coupling_config
+from gelcell.coupled.monolithic import MonolithicCoefficients, MonolithicSolver
 from gelcell.coupled.participants import FluidParticipant, GelParticipant
 from gelcell.geometry import DeviceBoundaries, Tag
 
-__all__ = ["FLOWS", "LayerCase", "LayerClosedForm", "LayerDevice", "layer_boundaries"]
+__all__ = ["FLOWS", "LayerCase", "LayerClosedForm", "LayerDevice", "LayerMonolithic",
+           "layer_boundaries"]
 
 FLOWS = ("poiseuille", "couette", "compression")
 _ENDS = [int(Tag.INLET), int(Tag.OUTLET)]
+#: the slab's symmetry faces z = 0 and z = depth (the 3D devices' floor and mid-height tags)
+_FACES_Z = [int(Tag.FLOOR), int(Tag.SYMMETRY_MID)]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -265,31 +277,65 @@ class LayerClosedForm:
         return max(abs(self.tau), abs(self.P))
 
 
-def layer_boundaries(case: LayerCase) -> DeviceBoundaries:
-    """The layer's boundary conditions as a DeviceBoundaries (tags of :func:`_strip`).
+def layer_boundaries(case: LayerCase, dim: int = 2) -> DeviceBoundaries:
+    """The layer's boundary conditions as a DeviceBoundaries (tags of :func:`_strip`), in ``dim`` = 2 or 3
+    (the slab: V_z = 0, v_f,z = u_z = 0 on the faces z = 0 and z = depth).
 
     The compression support (u_s = 0, v_f free) is not expressible there;
     :class:`LayerDevice` adds it as extra gel data.
     """
     G, U_w, q = case.drivers
     compression = case.flow == "compression"
+    slab = dim == 3
+    lid = ((0.0, -q) if compression else (U_w, 0.0)) + (0.0,) * (dim - 2)
     return DeviceBoundaries(
-        fluid_velocity=[([int(Tag.WALL)], (0.0, -q) if compression else (U_w, 0.0))],
-        fluid_component=[(_ENDS, 0 if compression else 1, 0.0)],
+        fluid_velocity=[([int(Tag.WALL)], lid)],
+        fluid_component=[(_ENDS, 0 if compression else 1, 0.0)] + ([(_FACES_Z, 2, 0.0)] if slab else []),
         gel_no_slip=[] if compression else [int(Tag.BOWL)],
-        gel_symmetry=[(_ENDS, 0 if compression else 1)],
+        gel_symmetry=[(_ENDS, 0 if compression else 1)] + ([(_FACES_Z, 2)] if slab else []),
         cell_symmetry=[],
         fluid_interfaces={"Gamma1": int(Tag.GAMMA1)},
-        cell_interfaces={})
+        cell_interfaces={}, dim=dim)
 
 
 def _strip(case: LayerCase, y0: float, y1: float, nx: int, ny: int, bottom: Tag, top: Tag,
-           comm: MPI.Comm):
-    """A rectangle [0, length] x [y0, y1] tagged INLET (x = 0), OUTLET (x = length), ``bottom``, ``top``."""
+           comm: MPI.Comm, depth: float | None = None, nz: int = 1):
+    """A rectangle [0, length] x [y0, y1] tagged INLET (x = 0), OUTLET (x = length), ``bottom``, ``top``;
+    with ``depth`` the box [0, length] x [y0, y1] x [0, depth] (nz cells along z), also FLOOR (z = 0) and
+    SYMMETRY_MID (z = depth)."""
+    if depth is not None:
+        return _box(case, (y0, y1), (nx, ny, nz), depth, comm,
+                    ((bottom, 1, y0), (top, 1, y1)))
     msh, ft = rectangle_mesh(0.0, y0, case.length, y1, nx, ny, comm)
     retag = {LEFT: Tag.INLET, RIGHT: Tag.OUTLET, BOTTOM: bottom, TOP: top}
     values = np.array([int(retag[int(v)]) for v in ft.values], dtype=np.int32)
     return msh, dmesh.meshtags(msh, 1, ft.indices, values)
+
+
+def _box(case: LayerCase, ys: tuple[float, float], n: tuple[int, int, int], depth: float, comm: MPI.Comm,
+         planes) -> tuple:
+    """Tetrahedra (dolfinx's ``create_box``) on [0, length] x [ys] x [0, depth], tagged INLET, OUTLET,
+    FLOOR (z = 0), SYMMETRY_MID (z = depth) and, for each ``(tag, axis, value)`` of ``planes``, the
+    facets on that plane (interior ones too)."""
+    msh = dmesh.create_box(comm, [np.array([0.0, ys[0], 0.0]), np.array([case.length, ys[1], depth])],
+                           list(n), dmesh.CellType.tetrahedron)
+    sides = ((int(Tag.INLET), 0, 0.0), (int(Tag.OUTLET), 0, case.length), (int(Tag.FLOOR), 2, 0.0),
+             (int(Tag.SYMMETRY_MID), 2, depth))
+    return msh, _plane_tags(msh, tuple(sides) + tuple((int(t), a, v) for t, a, v in planes))
+
+
+def _plane_tags(msh, planes) -> dmesh.MeshTags:
+    """Facet tags: ``tag`` on every facet lying in the plane x[axis] = value, for each (tag, axis, value)."""
+    fdim = msh.topology.dim - 1
+    tol = 1e-10 * np.abs(msh.geometry.x).max()
+    idx, val = [], []
+    for tag, axis, value in planes:
+        facets = dmesh.locate_entities(msh, fdim, lambda x, a=axis, c=value: np.abs(x[a] - c) <= tol)
+        idx.append(facets)
+        val.append(np.full(facets.size, tag, dtype=np.int32))
+    idx, val = np.hstack(idx), np.hstack(val)
+    order = np.argsort(idx)
+    return dmesh.meshtags(msh, fdim, idx[order].astype(np.int32), val[order])
 
 
 class LayerDevice:
@@ -303,44 +349,56 @@ class LayerDevice:
         robin_coefficient: alpha_n of the fluid's Robin form of I13; default
             the gel's Darcy resistance over its depth, (Ca/s) xi phi_s0 H_g / phi_f0
             (as the device's default_robin_coefficient with C = 1).
+        depth: None for the planar device; W > 0 for the slab 0 < z < W on
+            tetrahedra (cells of about the same size h along z).
+        transient: the time-dependent gel (v_s = du/dt by ``time_scheme``,
+            ``"be"`` or ``"bdf2"``), started from rest and stepped by
+            :meth:`advance`; Stokes is quasi-static (the device's windows).
     """
 
     def __init__(self, case: LayerCase, n: int = 8, comm: MPI.Comm = MPI.COMM_WORLD,
-                 robin_coefficient: float | None = None):
-        self.case, self.comm = case, comm
+                 robin_coefficient: float | None = None, depth: float | None = None,
+                 transient: bool = False, time_scheme: str = "be"):
+        if depth is not None and not depth > 0:
+            raise ValueError(f"LayerDevice: depth must be > 0 (the slab's extent along z) or None, got {depth!r}")
+        self.case, self.comm, self.depth, self.transient = case, comm, depth, bool(transient)
         self.closed_form = LayerClosedForm(case)
         prm = case.gel_parameters()
         viscosity = prm.viscosity
         self.h = case.H_g / n
-        nx, n_fluid = (max(1, round(extent / self.h)) for extent in (case.length, case.H_f))
-        self.fluid_mesh, self.fluid_tags = _strip(case, 0.0, case.H_f, nx, n_fluid, Tag.GAMMA1, Tag.WALL, comm)
-        self.gel_mesh, self.gel_tags = _strip(case, -case.H_g, 0.0, nx, n, Tag.BOWL, Tag.GAMMA1, comm)
-        self.boundaries = b = layer_boundaries(case)
+        self.cells = layer_cells(case, n, depth)
+        nx, n_fluid, nz = self.cells
+        self.fluid_mesh, self.fluid_tags = _strip(case, 0.0, case.H_f, nx, n_fluid, Tag.GAMMA1, Tag.WALL, comm,
+                                                  depth, nz)
+        self.gel_mesh, self.gel_tags = _strip(case, -case.H_g, 0.0, nx, n, Tag.BOWL, Tag.GAMMA1, comm, depth, nz)
+        self.dim = dim = self.fluid_mesh.geometry.dim
+        self.boundaries = b = layer_boundaries(case, dim)
         self.alpha_n = (viscosity * case.xi * case.phi_s0 * case.H_g / (1.0 - case.phi_s0)
                         if robin_coefficient is None else float(robin_coefficient))
         self.alpha_t = viscosity / case.beta
         G = self.closed_form.G
         self.fluid = StokesSolver(
             self.fluid_mesh, self.fluid_tags, viscosity=viscosity, velocity_bcs=b.fluid_velocity,
-            component_bcs=b.fluid_component, body_force=(G, 0.0) if G else None,
+            component_bcs=b.fluid_component, body_force=_vector((G, 0.0), dim) if G else None,
             interfaces={name: FluidInterface(tag, "robin", "robin", self.alpha_n, self.alpha_t)
                         for name, tag in b.fluid_interfaces.items()})
         body_forces = None
         if G:
             # the fluid phase feels phi_f G, the mixture G (= -grad of the pressure -G x)
-            body_forces = (ufl.as_vector(((1 - prm.phi_s0) * G, 0.0)),
-                           ufl.as_vector((G, 0.0)), ufl.as_ufl(0.0))
+            body_forces = (ufl.as_vector(_vector(((1 - prm.phi_s0) * G, 0.0), dim)),
+                           ufl.as_vector(_vector((G, 0.0), dim)), ufl.as_ufl(0.0))
         self.gel = PoroelasticGelSolver(
             self.gel_mesh, self.gel_tags, prm, no_slip=b.gel_no_slip, symmetry=b.gel_symmetry,
             fluid_interfaces=b.fluid_interfaces,
             dirichlet=[([int(Tag.BOWL)], "u", 0.0)] if case.flow == "compression" else (),
-            body_forces=body_forces)
+            body_forces=body_forces, transient=self.transient)
         if not np.allclose(self.fluid.interface_points("Gamma1"), self.gel.interface_points("Gamma1"),
                            rtol=0.0, atol=1e-12):
             raise RuntimeError("layer: the fluid and gel nodes on Gamma1 differ")
         self.participants = [FluidParticipant(self.fluid, b.fluid_interfaces, self.alpha_n, self.alpha_t),
-                             GelParticipant(self.gel, b.fluid_interfaces, b.cell_interfaces)]
-        self.data = coupling_data(b)
+                             GelParticipant(self.gel, b.fluid_interfaces, b.cell_interfaces,
+                                            time_scheme=time_scheme)]
+        self.data = coupling_data(b, dim=dim)
         self.scheme: cp.CouplingScheme | None = None
         self.result: cp.CouplingResult | None = None
 
@@ -352,6 +410,17 @@ class LayerDevice:
         self.result = self.scheme.solve()
         return self.result
 
+    def advance(self, dt: float, config: typing.Mapping | None = None) -> cp.WindowRecord:
+        """One time window [t, t + dt] of the transient device, coupled to convergence (default: the
+        device's time-dependent serial IQN-ILS to 1e-10); ``config`` is read by the first window only."""
+        if not self.transient:
+            raise ValueError("LayerDevice.advance: build the device with transient=True")
+        if self.scheme is None:
+            config = dict(config or coupling_config(with_cell=False, transient=True))
+            config.setdefault("verbose", False)
+            self.scheme = cp.build_scheme(config, self.participants, self.data, comm=self.comm)
+        return self.scheme.advance_window(dt)
+
     # -- errors against the closed form ------------------------------------------------------
     def field_errors(self) -> dict[str, float]:
         """L2 errors of the fields, relative to the exact field's L2 norm.
@@ -359,29 +428,35 @@ class LayerDevice:
         Pressures (exactly zero in the tangential flows) are measured against
         ``stress_scale`` times the square root of the region's area.
         """
-        cf, c = self.closed_form, self.case
+        cf, c, dim = self.closed_form, self.case, self.dim
         out = {}
         y = ufl.SpatialCoordinate(self.fluid_mesh)[1]
         Vx, Vy, P = cf.fluid(y)
-        area = c.length * c.H_f
-        out["V"] = _relative_l2(self.fluid.velocity, ufl.as_vector((Vx, Vy)), self.fluid_mesh)
+        area = c.length * c.H_f * self.width
+        out["V"] = _relative_l2(self.fluid.velocity, ufl.as_vector(_vector((Vx, Vy), dim)), self.fluid_mesh)
         out["P"] = _relative_l2(self.fluid.pressure, P, self.fluid_mesh, cf.stress_scale * math.sqrt(area))
         y = ufl.SpatialCoordinate(self.gel_mesh)[1]
         w, v, u_x, u_y, p = cf.gel(y, ufl)
-        area = c.length * c.H_g
-        out["v_f"] = _relative_l2(self.gel.interstitial_velocity(), ufl.as_vector((w, v)), self.gel_mesh)
-        out["u"] = _relative_l2(self.gel.displacement(), ufl.as_vector((u_x, u_y)), self.gel_mesh)
+        area = c.length * c.H_g * self.width
+        out["v_f"] = _relative_l2(self.gel.interstitial_velocity(), ufl.as_vector(_vector((w, v), dim)), self.gel_mesh)
+        out["u"] = _relative_l2(self.gel.displacement(), ufl.as_vector(_vector((u_x, u_y), dim)), self.gel_mesh)
         out["p"] = _relative_l2(self.gel.pore_pressure(), p, self.gel_mesh, cf.stress_scale * math.sqrt(area))
         return out
 
     def flow_rates(self) -> tuple[float, float]:
-        """(Q_f, Q_p) of the discrete solution: mean over x of int V_x dy and int phi_f0 v_f,x dy."""
+        """(Q_f, Q_p) of the discrete solution: mean over x (and z) of int V_x dy and int phi_f0 v_f,x dy."""
         Q_f = integrate(self.fluid.velocity[0], ufl.dx(domain=self.fluid_mesh))
         Q_p = integrate((1.0 - self.case.phi_s0) * self.gel.interstitial_velocity()[0], ufl.dx(domain=self.gel_mesh))
-        return Q_f / self.case.length, Q_p / self.case.length
+        section = self.case.length * self.width
+        return Q_f / section, Q_p / section
+
+    @property
+    def width(self) -> float:
+        """The extent across the flow: the slab's depth, 1 in the plane."""
+        return 1.0 if self.depth is None else float(self.depth)
 
     def interface_values(self) -> dict[str, np.ndarray]:
-        """The coupled solution's nodal values on Gamma1 (N, 2), as in ``LayerClosedForm.interface``."""
+        """The coupled solution's nodal values on Gamma1 (N, dim), as in ``LayerClosedForm.interface``."""
         if self.scheme is None:
             raise RuntimeError("layer: call solve() first")
         V = self.scheme.latest("Gamma1/velocity")
@@ -400,7 +475,7 @@ class LayerDevice:
         into the fluid, exactly 0 in the tangential flows), relative to the
         exact superficial speed.
         """
-        exact = self.closed_form.interface
+        exact = {k: np.array(_vector(v, self.dim)) for k, v in self.closed_form.interface.items()}
         values = self.interface_values()
         out = {k: float(np.linalg.norm(v - exact[k], axis=1).max() / np.linalg.norm(exact[k]))
                for k, v in values.items()}
@@ -416,6 +491,94 @@ class LayerDevice:
             for key, h, exact in zip(("Q_f", "Q_p"), self.flow_rates(), self.closed_form.flow_rates):
                 out[key] = abs(h - exact) / abs(exact)
         return out
+
+
+class LayerMonolithic:
+    """The layer device's monolithic reference: one mesh of fluid and gel, every condition in one system.
+
+    The mesh is the union of :class:`LayerDevice`'s two (the same cells, so
+    the same discrete problem): regions Tag.FLUID (y > 0) and Tag.GEL
+    (y < 0), Gamma1 their interior facets on y = 0, and the same outer
+    boundaries.  Solved by ``MonolithicSolver`` (Newton on V, P, w, u, p and
+    the multiplier lam = T_F on Gamma1).  It has no body forces and no
+    support that holds u_s but not v_f, so only the ``couette`` flow.
+    With ``transient`` it has the partitioned gel's time discretisation
+    (``time_scheme``) and is stepped by :meth:`advance`, one Newton solve per
+    window, from rest.
+    """
+
+    def __init__(self, case: LayerCase, n: int = 8, comm: MPI.Comm = MPI.COMM_WORLD,
+                 depth: float | None = None, transient: bool = False, time_scheme: str = "be"):
+        if case.flow != "couette":
+            raise ValueError(f"LayerMonolithic: flow must be 'couette' (no body force, bonded support), "
+                             f"got {case.flow!r}")
+        self.case, self.depth = case, depth
+        self.mesh, self.cell_tags, self.facet_tags = _two_region_mesh(case, n, depth, comm)
+        dim = self.mesh.geometry.dim
+        self.boundaries = layer_boundaries(case, dim)
+        coefficients = MonolithicCoefficients(
+            phi_s0=case.phi_s0, xi=case.xi, lambda_s=case.lambda_s, beta=case.beta, eta=case.eta, Ca=case.Ca,
+            mu_c=1.0, lambda_c=1.0, stress_scale=case.Ca, displacement_scale=case.Ca)   # viscous units s = d = Ca
+        self.solver = MonolithicSolver(self.mesh, self.cell_tags, self.facet_tags, self.boundaries, coefficients,
+                                       transient=transient)
+        self.clock = WindowClock(time_scheme)
+        self.time = 0.0
+
+    def solve(self) -> int:
+        """Newton to its tolerance; returns the number of iterations."""
+        return self.solver.solve()
+
+    def advance(self, dt: float) -> int:
+        """One window [t, t + dt] (transient): the state at t becomes the newest past one; Newton's iterations."""
+        scheme, dt_previous = self.clock.enter(self.time, dt, self.solver.push_history)
+        self.solver.set_time_step(dt, scheme, dt_previous)
+        iterations = self.solver.solve()
+        self.time += dt
+        return iterations
+
+    def field(self, name: str) -> fem.Function:
+        """``V``, ``P``, ``v_f``, ``u``, ``p`` or ``lam`` on the whole mesh (each meaningful on its region)."""
+        return self.solver.field(name)
+
+
+def _two_region_mesh(case: LayerCase, n: int, depth: float | None, comm: MPI.Comm):
+    """[0, length] x [-H_g, H_f] (x [0, depth]) with LayerDevice's cells: (mesh, cell tags, facet tags)."""
+    nx, n_fluid, nz = layer_cells(case, n, depth)
+    ny = n + n_fluid
+    if depth is None:
+        msh = dmesh.create_rectangle(comm, [np.array([0.0, -case.H_g]), np.array([case.length, case.H_f])],
+                                     [nx, ny], dmesh.CellType.triangle, diagonal=dmesh.DiagonalType.right)
+    else:
+        msh = dmesh.create_box(comm, [np.array([0.0, -case.H_g, 0.0]), np.array([case.length, case.H_f, depth])],
+                               [nx, ny, nz], dmesh.CellType.tetrahedron)
+    # the uniform rows j = 0..ny moved onto the two strips' rows: h_g = H_g/n below y = 0, H_f/n_fluid above
+    x = msh.geometry.x
+    row = (x[:, 1] + case.H_g) * ny / (case.H_g + case.H_f)
+    x[:, 1] = np.where(row <= n, -case.H_g + row * case.H_g / n, (row - n) * case.H_f / n_fluid)
+    tdim = msh.topology.dim
+    tol = 1e-10 * np.abs(x).max()
+    fluid = dmesh.locate_entities(msh, tdim, lambda X: X[1] >= -tol)
+    gel = dmesh.locate_entities(msh, tdim, lambda X: X[1] <= tol)
+    cells = np.hstack([fluid, gel]).astype(np.int32)
+    values = np.hstack([np.full(fluid.size, int(Tag.FLUID)), np.full(gel.size, int(Tag.GEL))]).astype(np.int32)
+    order = np.argsort(cells)
+    cell_tags = dmesh.meshtags(msh, tdim, cells[order], values[order])
+    planes = [(int(Tag.INLET), 0, 0.0), (int(Tag.OUTLET), 0, case.length), (int(Tag.BOWL), 1, -case.H_g),
+              (int(Tag.GAMMA1), 1, 0.0), (int(Tag.WALL), 1, case.H_f)]
+    if depth is not None:
+        planes += [(int(Tag.FLOOR), 2, 0.0), (int(Tag.SYMMETRY_MID), 2, depth)]
+    return msh, cell_tags, _plane_tags(msh, planes)
+
+
+def layer_cells(case: LayerCase, n: int, depth: float | None = None) -> tuple[int, int, int]:
+    """Cells along x, across the fluid and (slab; else 1) along z, of about the gel's size h = H_g/n."""
+    h = case.H_g / n
+    return tuple(max(1, round(extent / h)) for extent in (case.length, case.H_f, depth or h))
+
+
+def _vector(components, dim: int) -> tuple:
+    """The planar ``components`` (x, y) as a vector of ``dim`` components (z = 0 in the slab)."""
+    return tuple(components) + (0 * components[0],) * (dim - 2)
 
 
 def _relative_l2(u_h, exact, msh, norm: float | None = None, degree: int = 8) -> float:

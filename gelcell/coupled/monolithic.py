@@ -2,15 +2,15 @@
 
 One mesh of the whole device carries all unknowns
 
-    V, P    fluid velocity and pressure            (P2^2, P1)   active on the fluid
+    V, P    fluid velocity and pressure            (P2^d, P1)   active on the fluid
     w, p    relative velocity v_f - v_s of the
-            interstitial fluid, pore pressure      (P2^2, P1)   active on the gel
+            interstitial fluid, pore pressure      (P2^d, P1)   active on the gel
     u       network displacement in the gel and
-            cell displacement in the cell          (P2^2)       active on gel + cell
+            cell displacement in the cell          (P2^d)       active on gel + cell
     lam     the fluid's traction on the gel on
-            Gamma1/Gamma3 (a Lagrange multiplier)  (P2^2)       active on Gamma1/Gamma3
+            Gamma1/Gamma3 (a Lagrange multiplier)  (P2^d)       active on Gamma1/Gamma3
 
-each integrated only over its own subdomain; the dofs of a field outside
+(d = 2 or 3, the mesh's dimension), each integrated only over its own subdomain; the dofs of a field outside
 its subdomain have no equation and are left out of the linear solves
 (they stay zero).  The residual is
 
@@ -48,7 +48,7 @@ forms of ``fluid.ale``.  One dolfinx mesh cannot move its fluid part without
 moving the gel, whose reference configuration it also is, so the mesh stays
 where it is and the fluid's motion is a seventh field:
 
-    u_m     the fluid mesh displacement beyond Gamma1/Gamma3   (P2^2)   active on the fluid
+    u_m     the fluid mesh displacement beyond Gamma1/Gamma3   (P2^d)   active on the fluid
 
 The fluid's mesh displacement is u + u_m on the fluid cells: u (the network
 displacement) is one continuous P2 field, equal to u_s on the interface
@@ -138,7 +138,12 @@ class MonolithicSolver:
         #: the cell tags of the cells (several cells: one tag each)
         self.cell_region_tags = tuple(int(t) for t in (cell_region_tags or (int(Tag.CELL),)))
         self.boundaries, self.coefficients = boundaries, coefficients
+        if boundaries.dim != msh.geometry.dim:
+            raise ValueError(f"monolithic: the boundaries have {boundaries.dim} components (DeviceBoundaries.dim), "
+                             f"the mesh is {msh.geometry.dim}D")
         tdim = msh.topology.dim
+        #: the dimension of the device (2 or 3): the vector fields' number of components
+        self.gdim = msh.geometry.dim
         msh.topology.create_connectivity(tdim - 1, tdim)
         P2 = ufl.VectorElement("Lagrange", msh.ufl_cell(), 2)
         P1 = ufl.FiniteElement("Lagrange", msh.ufl_cell(), 1)
@@ -297,12 +302,13 @@ class MonolithicSolver:
             bcs.append(self._dirichlet(iV, tags, value, comp))
         # multiplier components on the interface where the fluid velocity is fixed by an outer boundary
         on_interface = self._active(ilam, facets=list(b.fluid_interfaces.values()))
+        zero = (0.0,) * self.gdim
         for tags, comps in b.fluid_dirichlet_tags():
             for comp in comps:
                 bcs.append(self._dirichlet(ilam, tags, 0.0, comp, restrict=on_interface))
         no_slip = list(b.gel_no_slip) + list(b.cell_interfaces.values())
-        bcs.append(self._dirichlet(ivf, no_slip, (0.0, 0.0)))
-        bcs.append(self._dirichlet(iu, b.gel_no_slip, (0.0, 0.0)))
+        bcs.append(self._dirichlet(ivf, no_slip, zero))
+        bcs.append(self._dirichlet(iu, b.gel_no_slip, zero))
         for tags, comp in b.gel_symmetry:
             bcs.append(self._dirichlet(ivf, tags, 0.0, comp))
             bcs.append(self._dirichlet(iu, tags, 0.0, comp))
@@ -355,7 +361,7 @@ class MonolithicSolver:
                     if dist.size and dist.max() > 1e-12 * (1.0 + np.abs(x_u).max()):
                         raise RuntimeError("monolithic: the w and u subspaces do not share their nodes")
                 v_s = self.history.nodal_rate(self.w.x.array[self._u_dofs])
-                f.x.array.reshape(-1, 2)[:] += v_s.reshape(-1, 2)[self._u_block_of_w]
+                f.x.array.reshape(-1, self.gdim)[:] += v_s.reshape(-1, self.gdim)[self._u_block_of_w]
         elif name == "fluid_motion":
             f = self.w.sub(FIELDS.index("u")).collapse()
             f.x.array[:] += self.w.sub(FIELDS_FINITE.index("u_m")).collapse().x.array

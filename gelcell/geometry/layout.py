@@ -16,7 +16,7 @@ import typing
 
 import numpy as np
 
-__all__ = ["DeviceBoundaries", "DeviceLayout", "CellSpec", "ParabolicInflow", "SegmentInflow",
+__all__ = ["DeviceBoundaries", "DeviceLayout", "CellSpec", "ParabolicInflow", "SegmentInflow", "ChipInflow",
            "duct_poiseuille", "duct_poiseuille_peak", "plane_poiseuille"]
 
 
@@ -31,10 +31,11 @@ class DeviceBoundaries:
     cell_symmetry: list[tuple[list[int], int]]               # u_c[c] = 0
     fluid_interfaces: dict[str, int]                         # Gamma1, Gamma3
     cell_interfaces: dict[str, int]                          # Gamma2
+    dim: int = 2                                             # components of a full vector
 
     def fluid_dirichlet_tags(self) -> list[tuple[list[int], tuple[int, ...]]]:
         """Every fluid Dirichlet boundary with the velocity components it fixes."""
-        out = [(tags, (0, 1)) for tags, _ in self.fluid_velocity]
+        out = [(tags, tuple(range(self.dim))) for tags, _ in self.fluid_velocity]
         out += [(tags, (c,)) for tags, c, _ in self.fluid_component]
         return out
 
@@ -63,6 +64,35 @@ class SegmentInflow:
         s = ((x[0] - self.a[0]) * t[0] + (x[1] - self.a[1]) * t[1]) / float(t @ t)
         shape = 4.0 * s * (1.0 - s) if self.profile == "parabolic" else np.ones_like(s)
         return np.vstack((self.speed * self.normal[0] * shape, self.speed * self.normal[1] * shape))
+
+
+class ChipInflow:
+    """The inflow (V_x, 0, 0) of a 3D device (model.md section 10), ``profile`` of the point (x, y, z):
+
+    * ``"duct"``: the series of :func:`duct_poiseuille` in the channel 0 < y < W, 0 < z < H, maximum 1
+      on its centre line (shear device, no-slip floor and lid);
+    * ``"plane"``: :func:`plane_poiseuille` between floor and lid with mean 1, uniform in y (normal device);
+    * ``"parabolic"``: 4 y (W - y) / W^2, uniform in z (shear slab); ``"uniform"``: 1 (normal slab).
+    """
+
+    PROFILES = ("duct", "plane", "parabolic", "uniform")
+
+    def __init__(self, profile: str, width: float, height: float):
+        if profile not in self.PROFILES:
+            raise ValueError(f"profile must be one of {self.PROFILES}, got {profile!r}")
+        self.profile, self.width, self.height = profile, _positive("width", width), _positive("height", height)
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        W, H, y, z = self.width, self.height, x[1], x[2]
+        if self.profile == "duct":
+            v = duct_poiseuille(y, z, W, H, 1.0)
+        elif self.profile == "plane":
+            v = plane_poiseuille(z, H, 1.0)
+        elif self.profile == "parabolic":
+            v = 4.0 * y * (W - y) / W**2
+        else:
+            v = np.ones_like(x[0])
+        return np.vstack((v, np.zeros_like(x[0]), np.zeros_like(x[0])))
 
 
 def _positive(name: str, value) -> float:

@@ -221,12 +221,13 @@ def build_meshes(params: CaseParameters, comm: MPI.Comm = MPI.COMM_WORLD, *,
         raise RuntimeError(f"meshing the {params.case} device failed: {error[0]}: {error[1]}")
     cell_tags = None
     region_meshes = {}
+    gdim = getattr(params.geometry, "dimension", 2)
     for name in wanted:
         tags = layout.cell_region_tags if name == "cell" else [int(REGIONS[name])]
         if name == "cell":
-            msh, cell_tags, ft = model_to_region_mesh(arrays, comm, 0, tags, gdim=2, with_cell_tags=True)
+            msh, cell_tags, ft = model_to_region_mesh(arrays, comm, 0, tags, gdim=gdim, with_cell_tags=True)
             region_meshes[name] = (msh, ft)
         else:
-            region_meshes[name] = model_to_region_mesh(arrays, comm, 0, tags, gdim=2)
-    whole_mesh = model_to_mesh(arrays, comm, 0, gdim=2) if whole else None
+            region_meshes[name] = model_to_region_mesh(arrays, comm, 0, tags, gdim=gdim)
+    whole_mesh = model_to_mesh(arrays, comm, 0, gdim=gdim) if whole else None
     return DeviceMeshes(params, region_meshes, whole_mesh, comm, time.perf_counter() - t0, layout, cell_tags)

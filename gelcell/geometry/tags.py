@@ -35,6 +35,8 @@ class Tag(enum.IntEnum):
     GEL_SYMMETRY_Y = 17    #: geometry files: symmetry line y = const of the gel
     GEL_SYMMETRY_X = 18    #: geometry files: symmetry line x = const of the gel
     CELL_SYMMETRY_X = 19   #: geometry files: symmetry line x = const of a cell
+    FLOOR = 41             #: 3D devices: the floor z = 0 (a wall, or a symmetry plane in the slab)
+    SYMMETRY_MID = 42      #: 3D devices: the mid-height symmetry plane z = H/2, incl. the cells' flat faces
 
 
 #: region name -> cell tag

@@ -110,6 +110,10 @@ def format_summary(summary: dict) -> str:
                  and c.get("prior_source") else "")
         lines.append(f"coupling: {c['scheme']} / {c['acceleration']}{prior}, {c['iterations']} iterations, "
                      f"converged={c['converged']}")
+    solver = summary.get("solver")
+    if solver:
+        lines.append(f"linear solvers: {solver['kind']} -> "
+                     + ", ".join(f"{field} {kind}" for field, kind in solver["fields"].items()))
     t = summary.get("timing", {})
     if t:
         lines.append("timing [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in t.items()))

@@ -28,7 +28,10 @@ from gelcell.post.quantities import summarize
 from gelcell.post.residuals import interface_residuals
 from gelcell.post.validity import check_case
 
-__all__ = ["CaseRun", "solve_partitioned", "solve_monolithic"]
+__all__ = ["CaseRun", "solve_partitioned", "solve_monolithic", "solver_summary", "MONOLITHIC_SOLVER"]
+
+#: what solves the monolithic reference: MUMPS only (``solver.kind`` auto picks it; iterative is refused)
+MONOLITHIC_SOLVER = "direct"
 
 
 class CaseRun(typing.NamedTuple):
@@ -46,7 +49,8 @@ def _dofs(space) -> int:
 def solve_partitioned(params: CaseParameters, coupling: typing.Mapping | None = None,
                       comm: MPI.Comm = MPI.COMM_WORLD, verbose: bool = True,
                       robin_coefficient: float | None = None, checks: bool = True,
-                      gamma2: str = DEFAULT_GAMMA2, reuse: ReuseStore | None = None) -> CaseRun:
+                      gamma2: str = DEFAULT_GAMMA2, reuse: ReuseStore | None = None, solver: str = "direct",
+                      petsc_options: typing.Mapping | None = None) -> CaseRun:
     """Solve a case with the partitioned scheme; summary with coupling, timing and checks.
 
     ``coupling``: the ``[coupling]`` table (the device's defaults fill in the
@@ -55,13 +59,17 @@ def solve_partitioned(params: CaseParameters, coupling: typing.Mapping | None = 
     (a sweep).  If it holds the state of a solve with the same
     :func:`~gelcell.coupled.defaults.reuse_key` (the same scaled problem, e.g.
     another Ca) and the same coupling configuration, that state starts this
-    solve; afterwards the store holds this solve's state.
+    solve; afterwards the store holds this solve's state.  ``solver``,
+    ``petsc_options``: the fields' linear solves (``[solver] kind`` and
+    ``[solver.petsc]``, :class:`~gelcell.coupled.device.Device`); the summary's
+    ``solver`` says what each field got.
     """
     t0 = time.perf_counter()
     params = described(params)
     check_case(params)
     config = partitioned_config(params, coupling, gamma2=gamma2)
-    device = Device(params, comm, robin_coefficient=robin_coefficient, gamma2=gamma2)
+    choice = {"solver": solver, "petsc_options": petsc_options}
+    device = Device(params, comm, robin_coefficient=robin_coefficient, gamma2=gamma2, **choice)
     t1 = time.perf_counter()
     key = None
     if reuse is not None:
@@ -74,7 +82,7 @@ def solve_partitioned(params: CaseParameters, coupling: typing.Mapping | None = 
             raise
         # the reused information did not fit after all: solve this value from scratch
         reused = False
-        device = Device(params, comm, robin_coefficient=robin_coefficient, gamma2=gamma2)
+        device = Device(params, comm, robin_coefficient=robin_coefficient, gamma2=gamma2, **choice)
         result = device.solve(config, verbose=verbose)
     if reuse is not None:
         reuse.add(key, params.physics.ca, device.scheme.reuse_state(participants=True))
@@ -83,6 +91,7 @@ def solve_partitioned(params: CaseParameters, coupling: typing.Mapping | None = 
     summary = summarize(fields)
     summary["method"] = "partitioned"
     summary["coupling"] = _coupling_summary(device, config, result, reused)
+    summary["solver"] = solver_summary(device)
     summary["mesh"] = _mesh_summary(device, fields)
     summary["timing"] = {"setup": device.mesh_time + device.setup_time, "coupling": t_solve,
                          **{f"solve_{k}": v for k, v in result.timing.items()},
@@ -105,6 +114,11 @@ def _coupling_summary(device: Device, config: dict, result: cp.CouplingResult, r
         "relaxation": result.relaxation}
 
 
+def solver_summary(device: Device) -> dict:
+    """``solver`` of the summary: the ``kind`` asked for and what each field got (``fields``)."""
+    return {"kind": device.solver, "fields": dict(device.solver_kinds)}
+
+
 def _mesh_summary(device: Device, fields) -> dict:
     """Global cells and degrees of freedom of each field's mesh."""
     mesh = {"fluid": {"cells": _cells(device.fluid.velocity), "dofs": _dofs(device.fluid.W)},
@@ -120,8 +134,16 @@ def _cells(f) -> int:
     return msh.topology.index_map(msh.topology.dim).size_global
 
 
-def solve_monolithic(params: CaseParameters, comm: MPI.Comm = MPI.COMM_WORLD, checks: bool = True) -> CaseRun:
-    """Solve a case with the monolithic reference; same summary as the partitioned run."""
+def solve_monolithic(params: CaseParameters, comm: MPI.Comm = MPI.COMM_WORLD, checks: bool = True,
+                     solver: str = "direct") -> CaseRun:
+    """Solve a case with the monolithic reference; same summary as the partitioned run.
+
+    ``solver``: ``"direct"`` or ``"auto"`` (which picks direct): the reference has no iterative path.
+    """
+    if solver not in ("direct", "auto"):
+        raise ValueError(f"solver = {solver!r}: the monolithic reference is solved by MUMPS only "
+                         f"(give 'direct' or 'auto')")
+    asked = {"kind": solver, "fields": {"monolithic": MONOLITHIC_SOLVER}}
     t0 = time.perf_counter()
     params = described(params)
     check_case(params)
@@ -140,6 +162,7 @@ def solve_monolithic(params: CaseParameters, comm: MPI.Comm = MPI.COMM_WORLD, ch
                              "active_dofs": int(solver.newton.num_active_dofs),
                              "dofs": solver.num_dofs}
     summary["coupling"] = None
+    summary["solver"] = asked
     summary["mesh"] = {"whole": {"cells": msh.topology.index_map(2).size_global, "dofs": solver.num_dofs},
                        "fluid": {"cells": _cells(fields.fluid_velocity)},
                        "gel": {"cells": _cells(fields.displacement)}}

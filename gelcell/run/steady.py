@@ -47,6 +47,11 @@ def write_case_file(directory: str, tables: dict, comm: MPI.Comm) -> str:
     return CASE_FILE
 
 
+def solver_arguments(config: RunConfig) -> dict:
+    """The ``solver`` and ``petsc_options`` arguments of a partitioned device from ``[solver]``."""
+    return {"solver": config.solver.kind, "petsc_options": config.solver.petsc or None}
+
+
 def run_header(config: RunConfig, coupling: dict | None, extra: str = "") -> str:
     """The first line of a run: the device, its cells and what solves it (the resolved scheme)."""
     params = config.case
@@ -93,7 +98,7 @@ def _without_cell(config: RunConfig, comm: MPI.Comm, say) -> tuple[dict, dict]:
     say("gelcell: first the same case without the cell, for the profile comparison")
     params = config.case.replace(with_cell=False)
     ref = solve_partitioned(params, config.coupling, comm=comm, verbose=config.output.progress, checks=False,
-                            gamma2=config.solver.gamma2)
+                            gamma2=config.solver.gamma2, **solver_arguments(config))
     return gamma_profiles(ref.fields, "Gamma1"), {"summary_no_cell.json": report(ref.summary, params)}
 
 
@@ -129,10 +134,10 @@ def run_case(config: RunConfig, out: str | None, *, comm: MPI.Comm = MPI.COMM_WO
     # a serial run draws its figures in a second process, which imports matplotlib while this one solves
     with figure_worker(out is not None and figures, comm) as worker:
         if monolithic:
-            run = solve_monolithic(params, comm)
+            run = solve_monolithic(params, comm, solver=config.solver.kind)
         else:
             run = solve_partitioned(params, coupling, comm, config.output.progress, gamma2=config.solver.gamma2,
-                                    reuse=reuse)
+                                    reuse=reuse, **solver_arguments(config))
         summary = report(run.summary, params)
         _say_results(summary, say, comm)
         if out is None:

@@ -31,7 +31,8 @@ from gelcell.post.validity import model_warnings
 from gelcell.run.backends import MonolithicBackend, PartitionedBackend
 from gelcell.run.frames import FRAMES_DIR, read_frame
 from gelcell.run.resume import CHECKPOINT
-from gelcell.run.steady import run_header, write_case_file
+from gelcell.run.solve import MONOLITHIC_SOLVER, solver_summary
+from gelcell.run.steady import run_header, solver_arguments, write_case_file
 from gelcell.run.transient import TransientRun
 
 __all__ = ["run_transient_case"]
@@ -58,7 +59,7 @@ def _backend(config: RunConfig, coupling: dict | None, comm: MPI.Comm):
     if coupling is None:
         return MonolithicBackend(config.case, comm, settings.scheme, settings.waveform)
     device = Device(config.case, comm, gamma2=config.solver.gamma2, transient=True, time_scheme=settings.scheme,
-                    inflow=settings.waveform)
+                    inflow=settings.waveform, **solver_arguments(config))
     return PartitionedBackend(device, {**coupling, "verbose": False}, comm)
 
 
@@ -76,6 +77,8 @@ def _summary(run: TransientRun, backend, state: dict, config: RunConfig, setup_t
     raw["method"] = backend.method
     summary = report(raw, params)
     summary["coupling"] = backend.describe()
+    summary["solver"] = (solver_summary(backend.device) if backend.method == "partitioned" else
+                         {"kind": config.solver.kind, "fields": {"monolithic": MONOLITHIC_SOLVER}})
     summary["transient"] = transient_summary(state, params, config.time, run.plan)
     if params.with_cell:
         # the model's limits over the whole run, not only at its end (e.g. the peaks of a pulsatile inflow)

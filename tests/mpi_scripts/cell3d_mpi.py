@@ -17,17 +17,11 @@ import ufl
 from dolfinx import fem
 
 from cell import NeoHookeanCellSolver, meshes
+from cell_summary import record
 
 comm = MPI.COMM_WORLD
 out = {"ranks": comm.size}
 
-
-def summary(prefix, s):
-    vm = s.von_mises_range()
-    out[f"{prefix}_centroid"] = s.centroid_displacement().tolist()
-    out[f"{prefix}_umax"] = s.max_displacement()
-    out[f"{prefix}_vm"] = [*vm["stress"], *vm["strain"]]
-    out[f"{prefix}_iterations"] = s.stats["newton_iterations"]
 
 
 centre, radius = np.array([2.0, -0.2, 0.2]), 0.03
@@ -45,14 +39,14 @@ for half in (False, True):
     out[f"{prefix}_force"] = s.interface_data("Gamma2")["force"].tolist()
     if half:
         out["half_plane_force"] = s.boundary_force(meshes.PLANE_Z).tolist()
-    summary(prefix, s)
+    record(out, prefix, s)
 
 msh, ft = meshes.shell(1.0, 1.5, 0.5)
 p = fem.Constant(msh, PETSc.ScalarType(1e-4))   # small: a dead load on a pinned body balances to O(strain)
 s = NeoHookeanCellSolver(msh, ft, mu=1.0, lmbda=1.5, tractions=[(meshes.INNER, -p * ufl.FacetNormal(msh))],
                          remove_rigid_modes=True)
 s.solve()
-summary("shell", s)
+record(out, "shell", s)
 out["shell_pins"] = [s.rigid_mode_reaction["relative"] < 1e-10]
 
 if comm.rank == 0:

@@ -17,17 +17,11 @@ import ufl
 from dolfinx import fem
 
 from cell import NeoHookeanCellSolver, meshes
+from cell_summary import record
 
 comm = MPI.COMM_WORLD
 out = {"ranks": comm.size}
 
-
-def summary(prefix, s):
-    vm = s.von_mises_range()
-    out[f"{prefix}_centroid"] = s.centroid_displacement().tolist()
-    out[f"{prefix}_umax"] = s.max_displacement()
-    out[f"{prefix}_vm"] = [*vm["stress"], *vm["strain"]]
-    out[f"{prefix}_iterations"] = s.stats["newton_iterations"]
 
 
 def boundary_displacement(X, centre, radius):
@@ -52,14 +46,14 @@ for half in (False, True):
     out[f"{prefix}_force"] = s.interface_data("Gamma2")["force"].tolist()
     if half:
         out["half_flat_force"] = s.boundary_force(meshes.FLAT).tolist()   # the symmetry reaction
-    summary(prefix, s)
+    record(out, prefix, s)
 
 msh, ft = meshes.annulus(1.0, 2.0, 0.3)
 p = fem.Constant(msh, PETSc.ScalarType(0.05))
 s = NeoHookeanCellSolver(msh, ft, mu=1.0, lmbda=1.5, tractions=[(meshes.INNER, -p * ufl.FacetNormal(msh))],
                          remove_rigid_modes=True)
 s.solve()
-summary("annulus", s)
+record(out, "annulus", s)
 
 if comm.rank == 0:
     print(json.dumps(out))
