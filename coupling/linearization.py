@@ -29,19 +29,26 @@ shorter than ``x`` the prior factorises ``I - Z C`` instead of ``I - A``
 (Woodbury): ``(I - A)^-1 = I + C (I - Z C)^-1 Z``.  Derivatives are carried
 per (data, variable) block, so identity and mapping blocks stay sparse and
 zero blocks are never multiplied.
+
+Operators that change.  A participant whose linearisation changes during a
+run (a time step of another size or scheme) says so with ``jacobian_key()``,
+a hashable that changes with its ``jacobian()``; participants without it are
+taken as constant.  :class:`LinearizedPrior` keeps the factorisations of the
+last few keys and factorises anew for a key it does not hold.
 """
 
 from __future__ import annotations
 
 import time
 import warnings
-from typing import Any, Mapping
+from collections import OrderedDict
+from typing import Any, Hashable, Mapping
 
 import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-__all__ = ["coupled_jacobian", "LinearizedPrior"]
+__all__ = ["coupled_jacobian", "operator_key", "LinearizedPrior"]
 
 Blocks = dict[str, Any]           # variable name -> (size of the data, size of the variable) matrix
 
@@ -57,6 +64,15 @@ def _participant_jacobian(scheme: Any, name: str) -> Mapping[tuple[str, str], np
         raise TypeError(f"participant {name!r}: jacobian() must return a dict (output, input) -> array, "
                         f"got {type(blocks).__name__}")
     return blocks
+
+
+def operator_key(scheme: Any) -> tuple[Hashable, ...]:
+    """Every participant's ``jacobian_key()`` in the scheme's order (None for one without it)."""
+    keys = []
+    for name in scheme.order:
+        method = getattr(scheme.participants[name], "jacobian_key", None)
+        keys.append(method() if callable(method) else None)
+    return tuple(keys)
 
 
 def _size(scheme: Any, name: str) -> int:
@@ -161,20 +177,27 @@ class LinearizedPrior:
 
     ``A`` (:func:`coupled_jacobian`) is computed at the first use, once the
     participants have been set up for the solve, and kept: it belongs to one
-    operator (a steady run, or time windows of one step size).  Serial
+    operator, named by :func:`operator_key` (a steady run, or time windows of
+    one step size and scheme).  When the key changes, the factorisation of the
+    new key is taken from the last ``kept`` ones or computed.  Serial
     schemes factorise the shorter ``I - Z C`` when the inner vector ``z`` is
     shorter than ``x`` (module docstring).
 
     Attributes:
-        setup_time: seconds spent on the derivatives and the factorisation.
+        setup_time: seconds spent on the derivatives and the factorisations.
+        factorizations: how many factorisations were computed.
     """
 
     accepts_matrices = True      # inverse_jacobian takes the secant columns in one call
 
-    def __init__(self, scheme: Any):
+    def __init__(self, scheme: Any, kept: int = 4):
         self._scheme = scheme
         self._factors: dict[str, Any] | None = None
+        self._key: tuple | None = None
+        self._kept: OrderedDict[tuple, dict[str, Any]] = OrderedDict()
+        self.kept = int(kept)
         self.setup_time = 0.0
+        self.factorizations = 0
 
     @property
     def jacobian(self) -> np.ndarray | None:
@@ -206,6 +229,21 @@ class LinearizedPrior:
             self._check(A)
             self._factors = {"A": A, "lu": self._lu(np.eye(A.shape[0]) - A)}
         self.setup_time += time.perf_counter() - t0
+        self.factorizations += 1
+
+    def _current(self) -> dict[str, Any]:
+        """The factorisation of the operator the participants linearise now (kept, or computed)."""
+        key = operator_key(self._scheme)
+        if self._factors is None or key != self._key:
+            if self._factors is not None:
+                self._kept[self._key] = self._factors
+            self._factors = self._kept.pop(key, None)
+            self._key = key
+            if self._factors is None:
+                self._factorize()
+            while len(self._kept) >= max(self.kept, 1):
+                self._kept.popitem(last=False)             # the least recently used
+        return self._factors
 
     @staticmethod
     def _lu(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -251,13 +289,12 @@ class LinearizedPrior:
         if rows != n:
             raise ValueError(f"linearized prior: the state is for {rows} unknowns, this scheme has {n}")
         self._factors = dict(state)
+        self._key = operator_key(self._scheme)
 
     def inverse_jacobian(self, r: np.ndarray) -> np.ndarray:
         """``J0 r``: the part of ``r`` the Newton step on the linearised map does not take (a vector,
         or a matrix of them as columns)."""
-        if self._factors is None:
-            self._factorize()
-        f = self._factors
+        f = self._current()
         if "A" in f:
             return r - sla.lu_solve(f["lu"], r, check_finite=False)
         # r - (I + C K^-1 Z) r

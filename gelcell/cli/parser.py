@@ -185,8 +185,9 @@ def _add_solver_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--jacobian-prior", choices=("none", "linearized"), default=None,
                    help="IQN's prior: linearized = the Newton step on the coupled map linearised at rest from the "
                         "three solvers' interface Jacobians, computed once per machine and kept in a disk cache; "
-                        "none = the secant model alone.  Default: linearized for steady runs with at most 4000 "
-                        "interface unknowns (mesh-size >= ~0.7), none otherwise (docs/coupling.md) "
+                        "none = the secant model alone.  Default: linearized with at most 4000 interface unknowns "
+                        "(mesh-size >= ~0.7), none otherwise (docs/coupling.md); time-dependent runs factorise it "
+                        "per step size and scheme, not cached on disk (docs/transient.md) "
                         "(coupling.acceleration.jacobian_prior)")
     g.add_argument("--solver", choices=SOLVER_KINDS, default=None,
                    help="the field solvers' linear solves: direct (MUMPS; default), iterative (Krylov with "

@@ -21,12 +21,15 @@ from gelcell.geometry import described, device_layout
 
 __all__ = ["coupling_config", "partitioned_config", "default_robin_coefficient", "default_gamma2_coefficient",
            "gamma2_stiffness_ratio", "default_relaxation_prior", "reuse_key", "AUTO_PRIOR_MAX_UNKNOWNS",
+           "TRANSIENT_PRIOR",
            "STEADY_SOLVER_OPTIONS"]
 
 
 #: the device default uses the linearized prior up to this many interface unknowns (the default
 #: mesh has 2440 (shear); at mesh-size 0.5, 4900, it would cost 7 s and 2.5 GB to save ~3 s)
 AUTO_PRIOR_MAX_UNKNOWNS = 4000
+#: whether time-dependent runs default to the linearized prior of their step (Device.window_scheme)
+TRANSIENT_PRIOR = True
 
 
 #: MUMPS options of a steady run's field solvers: the AMF ordering (ICNTL(7) = 2).  Its analyses
@@ -160,7 +163,7 @@ def coupling_config(scheme: str = "serial", acceleration: str = "iqn-ils", *, li
               "convergence": [{"type": "relative", "limit": limit, "data": "*"}]}
     if transient:
         config["extrapolation_order"] = 2
-    return _with_overrides(config, overrides or {})
+    return _with_overrides(config, overrides or {}, transient)
 
 
 def _acceleration_table(acceleration: str, transient: bool, relaxation_prior: dict,
@@ -199,12 +202,13 @@ def _acceleration_table(acceleration: str, transient: bool, relaxation_prior: di
     return acc
 
 
-def _with_overrides(config: dict, overrides: typing.Mapping) -> dict:
+def _with_overrides(config: dict, overrides: typing.Mapping, transient: bool = False) -> dict:
     """``config`` with a ``[coupling]`` table's keys on top.
 
     An ``acceleration`` table of another type replaces the device's; of the
     same type it is merged key by key, and a Jacobian prior it names drops
-    the device's relaxation prior.
+    the device's relaxation prior; a time-dependent run's linearized prior
+    reuses no past windows' columns unless the table says how many.
     """
     acc = config["acceleration"]
     for key, value in overrides.items():
@@ -215,6 +219,10 @@ def _with_overrides(config: dict, overrides: typing.Mapping) -> dict:
                 config["acceleration"] = {**acc, **value}
                 if value.get("jacobian_prior", "none") != "none" and "relaxation_prior" not in value:
                     config["acceleration"].pop("relaxation_prior", None)     # ours, replaced by theirs
+                if (transient and value.get("jacobian_prior") == "linearized" and "time_windows_reused" in acc
+                        and "time_windows_reused" not in value):
+                    # time-dependent: past windows' columns mislead the exact prior (docs/transient.md)
+                    config["acceleration"]["time_windows_reused"] = 0
         else:
             config[key] = value
     return config

@@ -27,8 +27,8 @@ from gelcell.case import DEFAULT_GAMMA2, GAMMA2, CaseParameters
 from gelcell.coupled import priorcache
 from gelcell.coupled.data import coupling_data
 from gelcell.coupled import solverchoice
-from gelcell.coupled.defaults import (AUTO_PRIOR_MAX_UNKNOWNS, coupling_config, default_gamma2_coefficient,
-                                      default_robin_coefficient)
+from gelcell.coupled.defaults import (AUTO_PRIOR_MAX_UNKNOWNS, TRANSIENT_PRIOR, coupling_config,
+                                      default_gamma2_coefficient, default_robin_coefficient)
 from gelcell.coupled.participants import CellParticipant, FluidParticipant, GelParticipant, MovingFluidParticipant
 from gelcell.geometry import described
 from gelcell.geometry.meshes import build_meshes
@@ -254,6 +254,25 @@ class Device:
             priorcache.store(self, self.scheme, prior.state(), self.comm)
         return self.result
 
+    def window_scheme(self, config: typing.Mapping) -> tuple[dict, cp.CouplingScheme]:
+        """The coupling of a time-dependent run's windows and its configuration.
+
+        ``config`` with the linearized prior where the device default has it
+        (:meth:`_default_prior`, :data:`TRANSIENT_PRIOR`): the participants'
+        interface Jacobians of one step from rest, so one factorisation per
+        step size and scheme (the gel's ``jacobian_key``), kept for the last
+        few (``coupling.LinearizedPrior``); and the solve paths it needs.
+        """
+        config = dict(config)
+        chosen = self._default_prior(config)
+        self.scheme = cp.build_scheme(chosen, self.participants, self.data, comm=self.comm)
+        if chosen is not config and not self._prior_pays(self.scheme.layout.size):
+            chosen = config                             # the plain secant model
+            self.scheme = cp.build_scheme(chosen, self.participants, self.data, comm=self.comm)
+        self._choose_solve_paths(chosen)
+        self.prior_source = None if self.linearized_prior is None else "computed per dt"
+        return chosen, self.scheme
+
     @property
     def linearized_prior(self) -> cp.LinearizedPrior | None:
         """The last solve's linearized prior, or None if it had none."""
@@ -273,7 +292,8 @@ class Device:
     def _default_prior(self, config: dict) -> dict:
         """``config`` with the linearized prior where the device default has it (a new dict), else ``config``.
 
-        The default where it pays: a steady run with IQN
+        The default where it pays: a steady run (a time-dependent one too, its
+        prior per step, without past windows' columns: :meth:`window_scheme`) with IQN
         whose acceleration table sets neither ``jacobian_prior`` nor
         ``relaxation_prior``, with ``gamma2`` "schur" or "dirichlet" (the
         cell's Jacobian has no Robin-Neumann form), and at most
@@ -284,7 +304,10 @@ class Device:
         """
         acc = config.get("acceleration")
         if (not isinstance(acc, typing.Mapping) or acc.get("type") not in ("iqn-ils", "iqn-imvj")
-                or "jacobian_prior" in acc or acc.get("relaxation_prior") or self.transient
-                or self.gamma2 == "robin"):
+                or "jacobian_prior" in acc or acc.get("relaxation_prior")
+                or (self.transient and not TRANSIENT_PRIOR) or self.gamma2 == "robin"):
             return config
-        return {**config, "acceleration": {**acc, "jacobian_prior": "linearized"}}
+        acc = {**acc, "jacobian_prior": "linearized"}
+        if self.transient and acc["type"] == "iqn-ils":
+            acc["time_windows_reused"] = 0              # past windows' columns mislead the exact prior
+        return {**config, "acceleration": acc}

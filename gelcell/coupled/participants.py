@@ -226,6 +226,14 @@ class GelParticipant(cp.Participant):
                 out[(data_out, data_in)] = J
         return out
 
+    def jacobian_key(self) -> float | None:
+        """What :meth:`jacobian` depends on besides the case: c0 = a0/dt of the step (to 13 digits, as
+        the solver refactorises), the only time-stepping coefficient left at rest with a zero history;
+        None for a steady solve."""
+        if not self.solver.transient:
+            return None
+        return float(f"{self.solver.history.coefficients[0]:.12e}")
+
     def _sent(self) -> tuple[str, ...]:
         return GEL_TO_MOVING_FLUID[1:] if self.solver.kinematics == "finite" else GEL_TO_FLUID[1:]
 

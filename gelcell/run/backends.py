@@ -16,7 +16,6 @@ from mpi4py import MPI
 
 from dolfinx import fem
 
-import coupling as cp
 from coupling.serialization import load_npz, save_npz
 from femtools.canonical import CanonicalOrder, MixedCanonical
 from femtools.timestepping import WindowClock
@@ -44,8 +43,7 @@ class PartitionedBackend:
 
     def __init__(self, device: Device, config: typing.Mapping, comm: MPI.Comm):
         self.device, self.comm = device, comm
-        self.config = dict(config)
-        self.scheme = cp.build_scheme(self.config, device.participants, device.data, comm=comm)
+        self.config, self.scheme = device.window_scheme(config)
         self.fields = fields_from_device(device)
 
     def window(self, t: float, dt: float) -> WindowOutcome:
@@ -81,7 +79,16 @@ class PartitionedBackend:
         acc = self.config["acceleration"]
         return {"scheme": self.config["scheme"], "acceleration": acc["type"],
                 "time_windows_reused": acc.get("time_windows_reused"),
-                "robin_coefficient": self.device.alpha_n, "gamma2": self.device.gamma2}
+                "robin_coefficient": self.device.alpha_n, "gamma2": self.device.gamma2,
+                "jacobian_prior": self.prior_description}
+
+    @property
+    def prior_description(self) -> str:
+        """The quasi-Newton prior in words, with the factorisations computed so far."""
+        prior = self.scheme.linearized_prior
+        if prior is None:
+            return "none"
+        return f"linearized per dt ({prior.factorizations} computed)"
 
 
 class MonolithicBackend:

@@ -64,6 +64,13 @@ def _backend(config: RunConfig, coupling: dict | None, comm: MPI.Comm):
     return PartitionedBackend(device, {**coupling, "verbose": False}, comm)
 
 
+def _prior_words(backend: PartitionedBackend) -> str:
+    if backend.scheme.linearized_prior is None:
+        return "the secant model alone (jacobian_prior = none)"
+    return ("linearized per dt: the exact interface Jacobian of one step, factorised for each step size "
+            "and scheme (jacobian_prior = linearized)")
+
+
 def _summary(run: TransientRun, backend, state: dict, config: RunConfig, setup_time: float) -> dict:
     """summary.json of the finished run: the final state's quantities, the milestones, the model's limits."""
     params = config.case
@@ -95,6 +102,9 @@ def _say_summary(summary: dict, say, comm: MPI.Comm) -> None:
         f"{t['iterations_total']} iterations (mean {t['iterations_mean']:.2f}), "
         f"t50/t90/t99 = {_fmt(t['t50'])}/{_fmt(t['t90'])}/{_fmt(t['t99'])}, "
         f"relaxation time {_fmt(t['relaxation_time'])} (paper units)")
+    prior = summary.get("coupling", {}).get("jacobian_prior")
+    if prior is not None:
+        say(f"coupling prior: {prior}")
 
 
 def _write_fields(work_dir: str, backend, state: dict, comm: MPI.Comm) -> list[str]:
@@ -150,6 +160,8 @@ def run_transient_case(config: RunConfig, out: str | None, *, comm: MPI.Comm = M
     t0 = time.perf_counter()
     backend = _backend(config, coupling, comm)
     setup_time = time.perf_counter() - t0
+    if coupling is not None:
+        say(f"coupling prior: {_prior_words(backend)}")
 
     def solve_and_write(work_dir: str | None, worker: FigureWorker | None = None) -> dict:
         run = TransientRun(backend, config.case, config.time, comm, work_dir, say)

@@ -14,7 +14,7 @@ import pytest
 
 from coupling import Participant, build_scheme
 from coupling.linearization import coupled_jacobian
-from coupling.toys import affine_pair_problem, chain_problem, two_bar_problem
+from coupling.toys import LinearOdeParticipant, affine_pair_problem, chain_problem, transient_problem, two_bar_problem
 
 
 def _config(scheme, problem, acceleration="iqn-ils", **extra):
@@ -176,3 +176,59 @@ def test_reuse_takes_the_prior_with_or_without_the_secant_columns():
         assert result.converged and result.iterations == 1
         for name, exact in problem.exact.items():
             assert np.allclose(sch.latest(name), exact, rtol=1e-9, atol=1e-12 * np.abs(exact).max())
+
+
+class _LinearOde(LinearOdeParticipant):
+    """The toy's backward-Euler ODE with its exact derivative, which depends on the window's dt."""
+
+    def jacobian(self):
+        lhs = np.eye(self.u.size) / self.dt + self.stiffness(self.t_new)
+        return {(self.write, self.read): np.linalg.solve(lhs, self.coupling)}
+
+    def jacobian_key(self):
+        return self.dt
+
+
+def _run_steps(steps, constant_key: bool = False):
+    """The transient toy (constant K) over windows of ``steps``: (scheme, records, monolithic BE answer)."""
+    problem = transient_problem(variation=0.0)
+    participants, data = problem.build()
+    for p in participants:
+        p.__class__ = _LinearOde
+        if constant_key:
+            p.jacobian_key = lambda: None          # the prior of the first window kept (the old behaviour)
+    a, b = participants
+    config = {"scheme": "serial-implicit", "order": ["A", "B"], "max_iterations": 50,
+              "convergence": [{"data": "*", "type": "relative", "limit": 1e-10}],
+              "acceleration": {"type": "iqn-ils", "jacobian_prior": "linearized", "time_windows_reused": 0,
+                               "filter": {"type": "qr2", "limit": 1e-8}}}
+    sch = build_scheme(config, participants, data)
+    u, v, t, m = a.u0.copy(), b.u0.copy(), 0.0, a.u0.size
+    records = []
+    for dt in steps:
+        records.append(sch.advance_window(dt))
+        lhs = np.block([[np.eye(m) / dt + a.stiffness(t + dt), -a.coupling],
+                        [-b.coupling, np.eye(m) / dt + b.stiffness(t + dt)]])
+        sol = np.linalg.solve(lhs, np.concatenate([u / dt + a.source(t + dt), v / dt + b.source(t + dt)]))
+        u, v, t = sol[:m], sol[m:], t + dt
+    return sch, records, (u, v)
+
+
+STEPS = [0.1, 0.1, 0.05, 0.05, 0.1, 0.02, 0.1]
+
+
+def test_prior_per_step_size_keeps_three_iterations_per_window():
+    """An affine window map, its exact Jacobian per dt: 3 serial sweeps in every window (module docstring),
+    one factorisation per distinct dt (0.1 taken back from the kept ones), the monolithic BE answer."""
+    sch, records, (u, v) = _run_steps(STEPS)
+    assert [r.iterations for r in records] == [3] * len(STEPS)
+    assert sch.linearized_prior.factorizations == 3
+    np.testing.assert_allclose(sch.latest("Gamma/a")[:, 0], u, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(sch.latest("Gamma/b")[:, 0], v, rtol=1e-9, atol=1e-12)
+
+
+def test_prior_of_another_step_size_costs_iterations():
+    """The control: the first window's prior kept for the other step sizes needs more sweeps there."""
+    _, records, _ = _run_steps(STEPS, constant_key=True)
+    assert all(r.iterations == 3 for r, dt in zip(records, STEPS) if dt == STEPS[0])
+    assert all(r.iterations > 3 for r, dt in zip(records, STEPS) if dt != STEPS[0])
