@@ -232,6 +232,11 @@ def _mesh_fields(params: CaseParameters, fluid, gel, cell, groups) -> None:
         if c:
             fields.append(_threshold(c, h["h_layer"], h["layer_band"], far, h["growth"],
                                      max(gmsh.model.occ.getMass(1, x) for x in c)))
+    background_size(fields, far)
+
+
+def background_size(fields: list[int], far: float) -> None:
+    """Mesh with the minimum of ``fields`` as the size, at most ``far``; nothing else sets sizes."""
     fmin = gmsh.model.mesh.field.add("Min")
     gmsh.model.mesh.field.setNumbers(fmin, "FieldsList", fields)
     gmsh.model.mesh.field.setAsBackgroundMesh(fmin)
@@ -242,6 +247,20 @@ def _mesh_fields(params: CaseParameters, fluid, gel, cell, groups) -> None:
     gmsh.option.setNumber("Mesh.Algorithm", 6)   # Frontal-Delaunay
 
 
+def add_physical_groups(dim: int, fluid, gel, cell, groups: dict) -> None:
+    """Name the regions (entities of ``dim``) and the boundary groups (``dim - 1``) by their tags."""
+    regions = [(fluid, int(Tag.FLUID), "fluid"), (gel, int(Tag.GEL), "gel")]
+    regions += [(c, cell_region_tag(k + 1), "cell" if len(cell) == 1 else f"cell_{k + 1}")
+                for k, c in enumerate(cell)]
+    for tags, tag, name in regions:
+        if tags:
+            gmsh.model.addPhysicalGroup(dim, tags, tag)
+            gmsh.model.setPhysicalName(dim, tag, name)
+    for tag, entities in groups.items():
+        gmsh.model.addPhysicalGroup(dim - 1, entities, int(tag))
+        gmsh.model.setPhysicalName(dim - 1, int(tag), tag_name(tag).lower())
+
+
 def build_model(params: CaseParameters) -> dict:
     """Build and mesh the gmsh model of ``params`` (current gmsh session, rank 0)."""
     if getattr(params.geometry, "dimension", 2) == 3:
@@ -249,17 +268,8 @@ def build_model(params: CaseParameters) -> dict:
         return build_model_3d(params)
     gmsh.model.add(f"gelcell_{params.case}")
     fluid, gel, cell = (_build_shear if params.case == "shear" else _build_normal)(params)
-    surfaces = [(fluid, int(Tag.FLUID), "fluid"), (gel, int(Tag.GEL), "gel")]
-    surfaces += [(c, cell_region_tag(k + 1), "cell" if len(cell) == 1 else f"cell_{k + 1}")
-                 for k, c in enumerate(cell)]
-    for tags, tag, name in surfaces:
-        if tags:
-            gmsh.model.addPhysicalGroup(2, tags, tag)
-            gmsh.model.setPhysicalName(2, tag, name)
     groups = _classify_curves(params, fluid, gel, cell)
-    for tag, curves in groups.items():
-        gmsh.model.addPhysicalGroup(1, curves, int(tag))
-        gmsh.model.setPhysicalName(1, int(tag), tag_name(tag).lower())
+    add_physical_groups(2, fluid, gel, cell, groups)
     _mesh_fields(params, fluid, gel, cell, groups)
     gmsh.model.mesh.generate(2)
     gmsh.model.mesh.setOrder(2)

@@ -22,8 +22,8 @@ import numpy as np
 
 from femtools.gmshimport import import_gmsh
 from gelcell.case import CaseParameters
-from gelcell.geometry.builtin_model import _Box, _curve_tag
-from gelcell.geometry.tags import FACET_TAGS, Tag, cell_region_tag, gamma2_tag, tag_name
+from gelcell.geometry.builtin_model import _Box, _curve_tag, add_physical_groups, background_size
+from gelcell.geometry.tags import FACET_TAGS, Tag, gamma2_tag, tag_name
 
 gmsh = import_gmsh()
 
@@ -188,14 +188,7 @@ def _mesh_fields(params: CaseParameters, fluid, gel, cell, groups) -> None:
             fields.append(_surface_threshold(s, h["h_layer"], h["layer_band"], far, h["growth"]))
     if params.geometry.walls == "noslip":
         fields.append(_floor_layer(gel, h["h_layer"], h["layer_band"], far, h["growth"]))
-    fmin = gmsh.model.mesh.field.add("Min")
-    gmsh.model.mesh.field.setNumbers(fmin, "FieldsList", fields)
-    gmsh.model.mesh.field.setAsBackgroundMesh(fmin)
-    for opt in ("Mesh.MeshSizeExtendFromBoundary", "Mesh.MeshSizeFromPoints",
-                "Mesh.MeshSizeFromCurvature"):
-        gmsh.option.setNumber(opt, 0)
-    gmsh.option.setNumber("Mesh.MeshSizeMax", far)
-    gmsh.option.setNumber("Mesh.Algorithm", 6)     # Frontal-Delaunay surfaces
+    background_size(fields, far)
     gmsh.option.setNumber("Mesh.Algorithm3D", 1)   # Delaunay volumes (serial, reproducible)
 
 
@@ -203,17 +196,8 @@ def build_model_3d(params: CaseParameters) -> dict:
     """Build and mesh the 3D gmsh model of ``params`` (current gmsh session, rank 0)."""
     gmsh.model.add(f"gelcell_{params.case}_3d")
     fluid, gel, cell = (_build_shear if params.case == "shear" else _build_normal)(params)
-    volumes = [(fluid, int(Tag.FLUID), "fluid"), (gel, int(Tag.GEL), "gel")]
-    volumes += [(c, cell_region_tag(k + 1), "cell" if len(cell) == 1 else f"cell_{k + 1}")
-                for k, c in enumerate(cell)]
-    for tags, tag, name in volumes:
-        if tags:
-            gmsh.model.addPhysicalGroup(3, tags, tag)
-            gmsh.model.setPhysicalName(3, tag, name)
     groups = _classify_surfaces(params, fluid, gel, cell)
-    for tag, surfaces in groups.items():
-        gmsh.model.addPhysicalGroup(2, surfaces, int(tag))
-        gmsh.model.setPhysicalName(2, int(tag), tag_name(tag).lower())
+    add_physical_groups(3, fluid, gel, cell, groups)
     _mesh_fields(params, fluid, gel, cell, groups)
     gmsh.model.mesh.generate(3)
     gmsh.model.mesh.setOrder(2)
