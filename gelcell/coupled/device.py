@@ -230,12 +230,7 @@ class Device:
         config = dict(config or coupling_config(with_cell=self.cell is not None, params=self.params))
         config.setdefault("verbose", verbose)
         config.setdefault("record_data", record_data)
-        chosen = self._default_prior(config)
-        self.scheme = cp.build_scheme(chosen, self.participants, self.data, comm=self.comm)
-        if chosen is not config and not self._prior_pays(self.scheme.layout.size):
-            chosen = config                             # the plain secant model
-            self.scheme = cp.build_scheme(chosen, self.participants, self.data, comm=self.comm)
-        self._choose_solve_paths(chosen)
+        self._build_scheme(config)
         if reuse is not None:
             # under the linearized prior the secant columns model what the prior leaves out, the
             # strain-sized part, which scales with Ca: another Ca's columns mislead (normal device,
@@ -254,6 +249,16 @@ class Device:
             priorcache.store(self, self.scheme, prior.state(), self.comm)
         return self.result
 
+    def _build_scheme(self, config: dict) -> dict:
+        """Build ``self.scheme`` under the default prior where it pays, else ``config``; return the one used."""
+        chosen = self._default_prior(config)
+        self.scheme = cp.build_scheme(chosen, self.participants, self.data, comm=self.comm)
+        if chosen is not config and not self._prior_pays(self.scheme.layout.size):
+            chosen = config                             # the plain secant model
+            self.scheme = cp.build_scheme(chosen, self.participants, self.data, comm=self.comm)
+        self._choose_solve_paths(chosen)
+        return chosen
+
     def window_scheme(self, config: typing.Mapping) -> tuple[dict, cp.CouplingScheme]:
         """The coupling of a time-dependent run's windows and its configuration.
 
@@ -264,12 +269,7 @@ class Device:
         few (``coupling.LinearizedPrior``); and the solve paths it needs.
         """
         config = dict(config)
-        chosen = self._default_prior(config)
-        self.scheme = cp.build_scheme(chosen, self.participants, self.data, comm=self.comm)
-        if chosen is not config and not self._prior_pays(self.scheme.layout.size):
-            chosen = config                             # the plain secant model
-            self.scheme = cp.build_scheme(chosen, self.participants, self.data, comm=self.comm)
-        self._choose_solve_paths(chosen)
+        chosen = self._build_scheme(config)
         self.prior_source = None if self.linearized_prior is None else "computed per dt"
         return chosen, self.scheme
 
