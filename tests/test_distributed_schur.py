@@ -10,6 +10,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from femtools import linalg
+from dense_aij import aij
 from femtools.errors import SingularSystemError
 
 COMM = MPI.COMM_WORLD
@@ -20,18 +21,6 @@ def _matrix(n: int, symmetric: bool) -> np.ndarray:
     M = np.where(rng.random((n, n)) < 0.05, rng.standard_normal((n, n)), 0.0)
     M = M + M.T if symmetric else M
     return M + np.diag(np.full(n, 6.0))
-
-
-def _aij(dense: np.ndarray) -> PETSc.Mat:
-    n = dense.shape[0]
-    A = PETSc.Mat().createAIJ([n, n], comm=COMM)
-    A.setUp()
-    start, end = A.getOwnershipRange()
-    for i in range(start, end):
-        cols = np.flatnonzero(dense[i]).astype(PETSc.IntType)
-        A.setValues([i], cols, dense[i, cols])
-    A.assemble()
-    return A
 
 
 @pytest.mark.parametrize("symmetric", [False, True])
@@ -46,7 +35,7 @@ def test_distributed_schur_complement_is_the_condensed_matrix(monkeypatch, symme
         dense[np.ix_(rest, rest)], dense[np.ix_(rest, keep)])
     monkeypatch.setattr(linalg, "SCHUR_BLOCK", 4)
     monkeypatch.setattr(linalg, "GATHERED", [])
-    A = _aij(dense)
+    A = aij(dense)
     S = linalg.distributed_schur_complement(A, keep)
     assert np.abs(S - expected).max() <= 1e-12 * np.abs(expected).max()
     assert linalg.GATHERED == [("schur", keep.size, keep.size, keep.size ** 2)]
@@ -61,7 +50,7 @@ def test_distributed_schur_complement_refuses_a_singular_eliminated_block():
     dense[:, 5] = 0.0
     dense[5, 6] = dense[6, 5] = 1.0
     with pytest.raises(SingularSystemError):
-        linalg.distributed_schur_complement(_aij(dense), np.array([6, 20]))
+        linalg.distributed_schur_complement(aij(dense), np.array([6, 20]))
 
 
 def test_gather_submatrix_and_entries_are_the_selected_part_only(monkeypatch):
@@ -71,7 +60,7 @@ def test_gather_submatrix_and_entries_are_the_selected_part_only(monkeypatch):
     dense = _matrix(n, False)
     rows, cols = np.array([59, 2, 30, 31, 10]), np.array([31, 0, 58, 30])
     monkeypatch.setattr(linalg, "GATHERED", [])
-    B = linalg.gather_submatrix(_aij(dense), rows, cols)
+    B = linalg.gather_submatrix(aij(dense), rows, cols)
     assert np.array_equal(B.toarray(), dense[np.ix_(rows, cols)])
     x = PETSc.Vec().createMPI(n, comm=COMM)
     start, end = x.getOwnershipRange()

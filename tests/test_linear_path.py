@@ -27,6 +27,7 @@ import ufl
 from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
 
+from dense_aij import aij
 from cell import NeoHookeanCellSolver
 from cell import meshes
 from femtools.functions import quadrature_measure
@@ -315,18 +316,6 @@ def test_schur_complement_is_the_condensed_matrix():
     assert schur_complement(K, np.empty(0, dtype=int)).shape == (0, 0)
 
 
-def _aij(dense: np.ndarray) -> PETSc.Mat:
-    n = dense.shape[0]
-    A = PETSc.Mat().createAIJ([n, n], comm=COMM)
-    A.setUp()
-    start, end = A.getOwnershipRange()
-    for i in range(start, end):
-        cols = np.flatnonzero(dense[i]).astype(PETSc.IntType)
-        A.setValues([i], cols, dense[i, cols])
-    A.assemble()
-    return A
-
-
 def test_symmetry_is_judged_entrywise_relative_to_the_largest_row_sum():
     """``is_symmetric``: asymmetries of round-off size (1e-15 of an entry) pass, one of 1e-9 of the
     largest row sum does not (within a rank's rows and between two ranks' rows), nor does an entry
@@ -344,7 +333,7 @@ def test_symmetry_is_judged_entrywise_relative_to_the_largest_row_sum():
     one_sided[0, n - 1] = 1e-3
     for matrix, expected in ((dense, True), (rounded, True), (skewed, False), (across, False),
                              (one_sided, False)):
-        assert is_symmetric(_aij(matrix)) is expected
+        assert is_symmetric(aij(matrix)) is expected
 
 
 def test_symmetric_operators_are_factorised_by_ldlt_and_others_by_lu():
@@ -362,7 +351,7 @@ def test_symmetric_operators_are_factorised_by_ldlt_and_others_by_lu():
     rhs = np.sin(np.arange(n + m) + 1.0)
     solver = DirectSolver(COMM, "ldlt")
     for dense, kind in ((saddle, "cholesky"), (skewed, "lu"), (saddle, "cholesky")):
-        A = _aij(dense)
+        A = aij(dense)
         solver.set_operator(A)
         solver.factorize_symmetric_if_possible()
         assert solver.kind == kind
