@@ -36,7 +36,7 @@ from coupling.convergence import (MEASURE_ALIASES, MEASURE_FORMULAS, AbsoluteCon
 from coupling.errors import CouplingDivergedError, CouplingError, CouplingNotConvergedError
 from coupling.extrapolation import lagrange_weights
 from coupling.layout import VectorLayout
-from coupling.linearization import LinearizedPrior, coupled_jacobian
+from coupling.linearization import LinearizedPrior, coupled_jacobian, operator_key
 from coupling.mapping import Mapping, build_mapping, order_along_curve, polyline_interpolation_matrix
 from coupling.parallel import SerialComm, default_comm, gather_rows, scatter_rows
 from coupling.participant import CURVE_ORDERS, CURVES, MAPPINGS, Data, Participant, uses_advance
@@ -60,7 +60,7 @@ __all__ = [
     # acceleration, convergence, extrapolation
     "Acceleration", "AccelerationInfo", "NoAcceleration", "ConstantRelaxation", "AitkenRelaxation",
     "IQNILS", "IQNIMVJ", "Preconditioner", "build_acceleration", "qr_filter", "relaxation_prior_diagonal",
-    "LinearizedPrior", "coupled_jacobian", "VectorLayout",
+    "LinearizedPrior", "coupled_jacobian", "operator_key", "VectorLayout",
     "ConvergenceMeasure", "AbsoluteConvergence", "RelativeConvergence", "ResidualRelativeConvergence",
     "MeasureValue", "build_measure", "measure_type", "MEASURE_ALIASES", "MEASURE_FORMULAS",
     "lagrange_weights",

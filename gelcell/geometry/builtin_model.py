@@ -263,9 +263,6 @@ def add_physical_groups(dim: int, fluid, gel, cell, groups: dict) -> None:
 
 def build_model(params: CaseParameters) -> dict:
     """Build and mesh the gmsh model of ``params`` (current gmsh session, rank 0)."""
-    if getattr(params.geometry, "dimension", 2) == 3:
-        from gelcell.geometry.builtin_model3d import build_model_3d
-        return build_model_3d(params)
     gmsh.model.add(f"gelcell_{params.case}")
     fluid, gel, cell = (_build_shear if params.case == "shear" else _build_normal)(params)
     groups = _classify_curves(params, fluid, gel, cell)

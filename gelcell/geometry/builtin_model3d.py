@@ -10,8 +10,7 @@ the tag of the planar curve it is the extrusion of
 (:func:`gelcell.geometry.builtin_model._curve_tag`).  Sizes: the planar ones,
 ``h_layer`` within the Brinkman length of the gel's bonded floor (no-slip
 walls), ``h_cell`` on and around the cells.  Called by
-:func:`gelcell.geometry.builtin_model.build_model` for a geometry with a
-``chip_height``.
+:mod:`gelcell.geometry.meshes` for a geometry with a ``chip_height``.
 """
 
 from __future__ import annotations

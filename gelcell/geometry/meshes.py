@@ -61,9 +61,18 @@ def _mesh_with_gmsh(params: CaseParameters) -> ModelArrays:
         from gelcell.geometry.files.build import mesh_file
         return ModelArrays(**mesh_file(params))
     with gmsh_session() as gmsh:
-        from gelcell.geometry.builtin_model import build_model       # imports gmsh
-        build_model(params)
+        _build_builtin_model(params)
         return ModelArrays.from_model(gmsh.model)
+
+
+def _build_builtin_model(params: CaseParameters) -> None:
+    """Build and mesh the gmsh model of a built-in device, planar or 3D (current gmsh session)."""
+    if getattr(params.geometry, "dimension", 2) == 3:
+        from gelcell.geometry.builtin_model3d import build_model_3d     # imports gmsh
+        build_model_3d(params)
+    else:
+        from gelcell.geometry.builtin_model import build_model          # imports gmsh
+        build_model(params)
 
 
 def _device_arrays(params: CaseParameters) -> ModelArrays:
