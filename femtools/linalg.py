@@ -31,7 +31,7 @@ from femtools.errors import NewtonError, SingularSystemError
 
 __all__ = ["DirectSolver", "BlockTriangularSolver", "is_symmetric", "LinearSolver", "NewtonSolver", "SolverStats",
            "direct_solver", "assemble_residual_vector", "jacobian_at_rest", "SingularSystemError",
-           "NewtonError", "gather_csr", "schur_complement", "gather_submatrix", "gather_entries",
+           "NewtonError", "schur_complement", "gather_submatrix", "gather_entries",
            "condensed_matrix", "distributed_schur_complement"]
 
 _counter = itertools.count()
@@ -741,13 +741,6 @@ class NewtonSolver:
             A.axpy(1.0, self._stiffness["matrix"], structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
         return A
 
-    def reference_csr(self, root: int | None = None) -> "scipy.sparse.csr_matrix | None":
-        """:meth:`reference_matrix` gathered (:func:`gather_csr`; the whole matrix: small problems only)."""
-        A = self.reference_matrix()
-        out = gather_csr(A, root)
-        A.destroy()
-        return out
-
     def _assemble_matrix(self, A: PETSc.Mat, form) -> None:
         """Assemble ``form`` into ``A`` (Dirichlet rows: identity), plus the interface stiffness."""
         _assemble_into(A, form, self.bcs)
@@ -940,26 +933,6 @@ class NewtonSolver:
         return False
 
 
-def gather_csr(A: PETSc.Mat, root: int | None = None) -> "scipy.sparse.csr_matrix | None":
-    """The whole of an assembled PETSc matrix as a scipy CSR matrix on every rank (for small matrices).
-
-    With ``root``: on that rank only (None on the others), e.g. for work done there and broadcast.
-    """
-    import scipy.sparse
-    indptr, indices, values = A.getValuesCSR()
-    comm = A.getComm().tompi4py()
-    if comm.size > 1:
-        # the ranks own consecutive row blocks, in rank order
-        blocks = (np.diff(indptr), indices, values)
-        parts = comm.allgather(blocks) if root is None else comm.gather(blocks, root=root)
-        if parts is None:
-            return None
-        counts, indices, values = (np.concatenate([p[k] for p in parts]) for k in range(3))
-        indptr = np.concatenate([[0], np.cumsum(counts)])
-    _record("csr", A.getSize(), indices.size)
-    return scipy.sparse.csr_matrix((values, indices, indptr), shape=A.getSize())
-
-
 def _petsc_library():
     """ctypes handle of the PETSc library petsc4py runs on (for the few calls petsc4py 3.18 lacks)."""
     import ctypes
@@ -984,7 +957,7 @@ def schur_complement(K: "scipy.sparse.spmatrix", keep: np.ndarray) -> np.ndarray
     By MUMPS's Schur-complement option (ICNTL(19)) in one sequential LU of K
     with ``keep`` eliminated last: the cost of one factorisation, against one
     back-substitution per kept index (docs/femtools-costs.md).  Local to the calling
-    rank (``K`` replicated, e.g. from :func:`gather_csr`); petsc4py 3.18 does not
+    rank (``K`` replicated, e.g. a matrix that is whole on one rank); petsc4py 3.18 does not
     wrap PETSc's Schur calls, so they are called through ctypes.  MUMPS does
     not report a singular eliminated block on this path (a zero row there
     passes): the caller's own factorisation of K's system is the check.  When
