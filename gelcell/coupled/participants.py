@@ -227,9 +227,9 @@ class GelParticipant(cp.Participant):
         return out
 
     def jacobian_key(self) -> float | None:
-        """What :meth:`jacobian` depends on besides the case: c0 = a0/dt of the step (to 13 digits, as
-        the solver refactorises), the only time-stepping coefficient left at rest with a zero history;
-        None for a steady solve."""
+        """What :meth:`jacobian` depends on besides the case: c0 = a0/dt of the step, the only
+        time-stepping coefficient left at rest with a zero history, rounded to 13 significant digits
+        (steps that differ by the round-off of accumulated times share a prior); None for a steady solve."""
         if not self.solver.transient:
             return None
         return float(f"{self.solver.history.coefficients[0]:.12e}")
