@@ -43,9 +43,6 @@ class CaseRun(typing.NamedTuple):
     solver: typing.Any
 
 
-_dofs = space_unknowns
-
-
 def solve_partitioned(params: CaseParameters, coupling: typing.Mapping | None = None,
                       comm: MPI.Comm = MPI.COMM_WORLD, verbose: bool = True,
                       robin_coefficient: float | None = None, checks: bool = True,
@@ -122,11 +119,11 @@ def solver_summary(device: Device) -> dict:
 
 def _mesh_summary(device: Device, fields) -> dict:
     """Global cells and degrees of freedom of each field's mesh."""
-    mesh = {"fluid": {"cells": _cells(device.fluid.velocity), "dofs": _dofs(device.fluid.W)},
-            "gel": {"cells": _cells(fields.displacement), "dofs": _dofs(device.gel.W)}}
+    mesh = {"fluid": {"cells": _cells(device.fluid.velocity), "dofs": space_unknowns(device.fluid.W)},
+            "gel": {"cells": _cells(fields.displacement), "dofs": space_unknowns(device.gel.W)}}
     if device.cell is not None:
         mesh["cell"] = {"cells": _cells(device.cell.displacement),
-                        "dofs": _dofs(device.cell.displacement.function_space)}
+                        "dofs": space_unknowns(device.cell.displacement.function_space)}
     return mesh
 
 
