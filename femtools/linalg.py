@@ -570,7 +570,7 @@ class NewtonSolver:
             J = ufl.derivative(F if F_data is None else F + F_data, u)
         self.F = fem.form(F, form_compiler_params=fcp)
         self.F_data = None if F_data is None else fem.form(F_data, form_compiler_params=fcp)
-        self.J = fem.form(J, form_compiler_params=fcp)
+        self._J_ufl, self._fcp, self._J = J, fcp, None
         self.linear_tolerance = float(linear_tolerance)
         self.last_linear_ratio: float | None = None
         self._track_sources(F, data_coefficients, name)
@@ -580,7 +580,8 @@ class NewtonSolver:
         self.stats = SolverStats()
         self.history: list[float] = []
         comm = u.function_space.mesh.comm
-        self.A = fem_petsc.create_matrix(self.J)
+        pattern = self.J_reference if _pattern_covers(J_reference, J) else self.J
+        self.A = fem_petsc.create_matrix(pattern)
         self.b = fem_petsc.create_vector(self.F)
         self._bc_check = self.A.createVecRight()
         self.du = self.A.createVecRight()
@@ -638,6 +639,14 @@ class NewtonSolver:
         if self._active is None:
             return self.A.getSize()[0]
         return self.u.function_space.mesh.comm.allreduce(self._active.getLocalSize(), op=MPI.SUM)
+
+    @property
+    def J(self) -> fem.FormMetaClass:
+        """The exact Jacobian, compiled when first needed: with a ``J_reference`` a solve at
+        small loads never needs it, and a finite-strain 3D Jacobian takes tens of seconds to compile."""
+        if self._J is None:
+            self._J = fem.form(self._J_ufl, form_compiler_params=self._fcp)
+        return self._J
 
     def invalidate_jacobian(self) -> None:
         """Factorise again at the next iteration (e.g. coefficients of J changed)."""
@@ -1013,6 +1022,19 @@ def _schur_complement(K: "scipy.sparse.csr_matrix", keep: np.ndarray, icntl14: i
     return out
 
 
+def _pattern_covers(reference: ufl.Form | None, J: ufl.Form) -> bool:
+    """Whether the matrix pattern of ``reference`` holds that of ``J`` (same spaces): it has a
+    cell integral over every cell, which couples all dofs of a cell, and each of J's interior
+    facet integrals (exterior facet couplings lie within one cell)."""
+    if reference is None:
+        return False
+    def kinds(form):
+        return {(itg.integral_type(), itg.subdomain_id()) for itg in form.integrals()}
+    mine, theirs = kinds(reference), kinds(J)
+    return (("cell", "everywhere") in mine and reference.arguments() == J.arguments()
+            and all(t != "interior_facet" or (t, s) in mine for t, s in theirs))
+
+
 def jacobian_at_rest(F: ufl.Form, u: fem.Function, coefficients=()) -> ufl.Form:
     """dF/du with ``u`` and ``coefficients`` replaced by zero Functions: the linearisation at rest.
 
@@ -1021,8 +1043,14 @@ def jacobian_at_rest(F: ufl.Form, u: fem.Function, coefficients=()) -> ufl.Form:
     it is assembled.
     """
     J = ufl.derivative(F, u)
-    zeros = {c: fem.Function(c.function_space) for c in (u, *coefficients)}
-    return ufl.replace(J, zeros)
+    try:
+        # UFL zeros fold the kinematics at rest (F = I, J = 1) before code generation: a kernel
+        # that compiles and assembles like a linear one (the 3D finite-strain forms' cost)
+        return ufl.replace(J, {c: ufl.zero(*c.ufl_shape) for c in (u, *coefficients)})
+    except (ZeroDivisionError, ufl.log.UFLException):
+        # an expression singular at zero (e.g. 1/|v|): zero-valued Functions give its value at rest
+        zeros = {c: fem.Function(c.function_space) for c in (u, *coefficients)}
+        return ufl.replace(J, zeros)
 
 
 def assemble_residual_vector(form) -> PETSc.Vec:

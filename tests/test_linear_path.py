@@ -466,3 +466,35 @@ def test_nodal_loads_on_a_repeated_dof_add_up():
         solutions.append(owned(u).copy())
     a, b = solutions
     assert gnorm(b) > 0 and gnorm(a - b) <= 1e-12 * gnorm(a), gnorm(a - b) / gnorm(a)
+
+
+# -- the linearisation at rest: folded by UFL, the same matrix -----------------------------------
+def test_jacobian_at_rest_folded_equals_zero_functions():
+    """jacobian_at_rest replaces the state by UFL zeros (F = I folds before code generation): its
+    matrix is the one of dF/du at a zero-valued state, here a finite-strain neo-Hookean solid."""
+    from femtools.linalg import jacobian_at_rest
+    msh, _ = rectangle_mesh(0.0, 0.0, 1.0, 1.0, 3, 3)
+    V = fem.VectorFunctionSpace(msh, ("Lagrange", 2))
+    u, v = fem.Function(V), ufl.TestFunction(V)
+    F = ufl.Identity(2) + ufl.grad(u)
+    J = ufl.det(F)
+    P = 1.3 * (F - ufl.inv(F).T) + 0.7 * ufl.ln(J) * ufl.inv(F).T
+    residual = ufl.inner(P, ufl.grad(v)) * ufl.dx
+    zero = fem.Function(V)
+    A = fem_petsc.assemble_matrix(fem.form(jacobian_at_rest(residual, u)))
+    B = fem_petsc.assemble_matrix(fem.form(ufl.replace(ufl.derivative(residual, u), {u: zero})))
+    A.assemble()
+    B.assemble()
+    B.axpy(-1.0, A, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+    assert B.norm() <= 1e-13 * A.norm()
+
+
+def test_a_small_load_solve_never_compiles_the_exact_jacobian():
+    """At small loads the kept linearisation at rest serves the whole solve: the exact Jacobian
+    (tens of seconds to compile for a 3D finite-strain gel) is compiled only when first needed."""
+    gel = _column(GelParameters.viscous_units(Ca=1e-12), kinematics="finite")
+    _load(gel, 1.0)
+    gel.solve()
+    newton = gel.newton
+    assert newton._J is None
+    assert newton.J is not None and newton._J is newton.J
