@@ -161,7 +161,8 @@ def solve_monolithic(params: CaseParameters, comm: MPI.Comm = MPI.COMM_WORLD, ch
                              "dofs": solver.num_dofs}
     summary["coupling"] = None
     summary["solver"] = asked
-    summary["mesh"] = {"whole": {"cells": msh.topology.index_map(2).size_global, "dofs": solver.num_dofs},
+    whole = msh.topology.index_map(msh.topology.dim).size_global
+    summary["mesh"] = {"whole": {"cells": whole, "dofs": solver.num_dofs},
                        "fluid": {"cells": _cells(fields.fluid_velocity)},
                        "gel": {"cells": _cells(fields.displacement)}}
     if fields.cell_displacement is not None:
