@@ -106,7 +106,8 @@ def _coupling_summary(device: Device, config: dict, result: cp.CouplingResult, r
         "robin_coefficient": device.alpha_n, "gamma2": device.gamma2,
         "gamma2_coefficient": device.kappa if device.gamma2 == "robin" else None,
         "jacobian_prior": "none" if device.linearized_prior is None else "linearized",
-        "prior_source": device.prior_source,
+        "prior_source": device.prior_source, "prior_reason": device.prior_declined,
+        "interface_unknowns": device.scheme.layout.size,
         "iterations": result.iterations, "converged": result.converged,
         "reason": result.reason, "reused": reused, "residual_history": result.residual_history,
         "relaxation": result.relaxation}
