@@ -6,7 +6,8 @@ Before solving (:func:`check_case`, raising :class:`ModelLimitError`):
 * the cell's stiffness must be within :data:`STIFFNESS_RATIO_RANGE` of the gel's
   (:func:`check_stiffness_ratio`);
 * the mesh must fit in this machine's memory (:func:`estimate_mesh`), estimated
-  from the element sizes and the closed-form areas and lengths, before gmsh runs;
+  from the element sizes and the closed-form areas and lengths (a 3D device's
+  volumes and areas, :func:`estimate_mesh_3d`), before gmsh runs;
   a geometry file's mesh from coarse probe meshes of its own sizes
   (:func:`estimate_file_mesh`);
 
@@ -33,12 +34,12 @@ import sys
 from gelcell.case import CaseParameters
 from gelcell.errors import ModelLimitError
 from gelcell.geometry import Tag, described
-from gelcell.geometry.builtin import closed_form_measures
+from gelcell.geometry.builtin import closed_form_measures, closed_form_measures_3d
 from gelcell.geometry.files.read import reference_elements
 from gelcell.machine import MEMORY_SHARE, machine_memory
 
 __all__ = ["representable_ca", "check_representable", "check_stiffness_ratio",
-           "STIFFNESS_RATIO_RANGE", "estimate_mesh", "check_mesh_size", "estimate_file_mesh",
+           "STIFFNESS_RATIO_RANGE", "estimate_mesh", "estimate_mesh_3d", "check_mesh_size", "estimate_file_mesh",
            "check_file_mesh_size", "check_case",
            "machine_memory", "model_warnings", "MAX_DISPLACEMENT_GRADIENT", "MAX_CELL_STRAIN", "MAX_NEGLECTED"]
 
@@ -129,7 +130,10 @@ def estimate_mesh(params: CaseParameters) -> dict:
     on the gel's side) adds its uniform part and the graded part that grows to the
     far-field size.  Against the meshes of both devices at size factors 3 to 0.5
     it is within 20 %.  Returns the element count and the memory a run needs.
+    A 3D device (a geometry with ``chip_height``): :func:`estimate_mesh_3d`.
     """
+    if getattr(params.geometry, "dimension", 2) == 3:
+        return estimate_mesh_3d(params)
     h = params.element_sizes()
     m = closed_form_measures(params)
     far = max(h["h_fluid"], h["h_gel"])
@@ -150,6 +154,84 @@ def _memory(elements: float) -> float:
     return BASE_MEMORY + MEMORY_PER_ELEMENT * elements * math.log2(max(elements, 2.0))
 
 
+# 3D devices (model.md section 10)
+#: Volume of a regular tetrahedron of edge h: h^3 / (6 sqrt(2)).
+_TETRAHEDRON = 1.0 / (6.0 * math.sqrt(2.0))
+#: gmsh's Delaunay tetrahedra per regular-tetrahedron volume of the target size: 0.55 on a unit
+#: cube at h = 0.05 and 0.035 (0.59 at h = 0.1, the surfaces' share); the same constant fits the
+#: devices' meshes with the bands below.
+GMSH_TETRAHEDRA = 0.55
+#: A refinement band narrower than this many elements of its size is meshed as this many layers
+#: (its surface's triangles carry tetrahedra of their own size): the bands are 3 / size factor
+#: elements wide, so at the coarse sizes the surfaces set the count.
+MIN_BAND_LAYERS = 1.5
+#: Peak memory of a 3D run: BASE_MEMORY_3D + MEMORY_LINEAR_3D N + MEMORY_FILL_3D N^(4/3) bytes for N
+#: tetrahedra: the matrices and fields grow like N, the sparse LU's fill of a 3D mesh like N^(4/3)
+#: (nested dissection) and faster.  Fitted to the peak resident memory of the partitioned 3D runs
+#: (finite kinematics, default cell, chip height 0.4; docs/performance.md, "3D devices").
+BASE_MEMORY_3D = 0.25e9
+MEMORY_LINEAR_3D = 5.7e4
+MEMORY_FILL_3D = 1.9e3
+
+
+def _band_tetrahedra(area: float, size: float, band: float, far: float, growth: float,
+                     depth: float = math.inf) -> float:
+    """Tetrahedra in a refinement band on one side of a surface of ``area``.
+
+    Uniform ``size`` over max(``band``, MIN_BAND_LAYERS ``size``), then the size
+    s(d) grows linearly by ``growth`` per unit distance up to ``far``; both parts
+    end at the region's ``depth`` (the floor layer's: the half height).  A
+    volume dV at size s holds dV / (s^3 / (6 sqrt 2)) regular tetrahedra, and
+    the graded part integrates to area (1/s^2 - 1/s_end^2) / (2 growth) over that.
+    """
+    uniform = min(max(band, MIN_BAND_LAYERS * size), depth)
+    end = min(far, size + growth * max(depth - uniform, 0.0))
+    graded = (1.0 / size ** 2 - 1.0 / end ** 2) / (2.0 * growth) if end > size else 0.0
+    return area * (uniform / size ** 3 + graded) / _TETRAHEDRON
+
+
+def estimate_mesh_3d(params: CaseParameters) -> dict:
+    """Estimated tetrahedra of a 3D device mesh (fluid + gel + cells) from the size fields of
+    :mod:`gelcell.geometry.builtin_model3d`, before gmsh runs.
+
+    GMSH_TETRAHEDRA times the regular tetrahedra of: the fluid's and the gel's
+    volumes at their far-field sizes, the cells' at ``h_cell``; the bands of
+    ``h_layer`` on Γ1/Γ3 (into the fluid and the gel), on the gel's walls (bowl,
+    posts) and on the gel's floor (no-slip walls; ending at the half height);
+    the band of ``h_cell`` around the cells in the gel.  Against gmsh's meshes
+    of both devices (chip height 0.4, no-slip walls) at size factors 5 to 1 it
+    is within 10 %; with symmetric walls it over-estimates by 10 to 40 %.
+    Returns the element count and the memory a run needs.
+    """
+    h = params.element_sizes()
+    m = closed_form_measures_3d(params)
+    hf, hg, hl, grow = h["h_fluid"], h["h_gel"], h["h_layer"], h["growth"]
+    gel = m["gel"]["area"]
+    interfaces = gel.get(Tag.GAMMA1, 0.0) + gel.get(Tag.GAMMA3, 0.0)
+    walls = gel.get(Tag.BOWL, 0.0) + gel.get(Tag.POST, 0.0)
+    ideal = (m["fluid"]["volume"] / hf ** 3 + m["gel"]["volume"] / hg ** 3) / _TETRAHEDRON
+    ideal += _band_tetrahedra(interfaces, hl, h["layer_band"], hf, grow)
+    ideal += _band_tetrahedra(interfaces + walls, hl, h["layer_band"], hg, grow)
+    # symmetric walls leave the floor unrefined, yet gmsh fills the thin slab with about as many
+    # tetrahedra (shear 33e3 against 38e3 at size factor 2): both take the no-slip count
+    ideal += _band_tetrahedra(gel[Tag.FLOOR], hl, h["layer_band"], hg, grow, depth=0.5 * params.geometry.chip_height)
+    if params.with_cell:
+        ideal += m["cell"]["volume"] / (_TETRAHEDRON * h["h_cell"] ** 3)
+        ideal += _band_tetrahedra(gel[Tag.GAMMA2], h["h_cell"], h["cell_band"], hg, grow)
+    count = GMSH_TETRAHEDRA * ideal
+    return {"elements": count, "memory_bytes": _memory_3d(count)}
+
+
+def _memory_3d(elements: float) -> float:
+    return BASE_MEMORY_3D + MEMORY_LINEAR_3D * elements + MEMORY_FILL_3D * elements ** (4.0 / 3.0)
+
+
+def _round_up(size: float) -> float:
+    """``size`` rounded up to two significant digits (the suggested size factor must fit itself)."""
+    scale = 10.0 ** (math.floor(math.log10(size)) - 1)
+    return math.ceil(size / scale - 1e-9) * scale
+
+
 def check_mesh_size(params: CaseParameters, memory: int | None = None) -> dict:
     """Raise :class:`ModelLimitError` if the estimated mesh does not fit in ``memory``."""
     est = estimate_mesh(params)
@@ -167,7 +249,7 @@ def check_mesh_size(params: CaseParameters, memory: int | None = None) -> dict:
         raise ModelLimitError(
             f"--mesh-size {params.mesh.size_factor:g} would make about {est['elements']:.2g} elements, "
             f"which need about {est['memory_bytes'] / 2**30:.3g} GiB; this machine has "
-            f"{memory / 2**30:.3g} GiB: choose --mesh-size {1.01 * hi:.2g} or larger")
+            f"{memory / 2**30:.3g} GiB: choose --mesh-size {_round_up(hi):g} or larger")
     return est
 
 
@@ -207,7 +289,7 @@ def check_file_mesh_size(params: CaseParameters, memory: int | None = None) -> d
         lo, hi = (lo, mid) if _memory(est["elements"] * (params.mesh.size_factor / mid) ** 2) <= budget else (mid, hi)
     raise ModelLimitError(
         f"--mesh-size {params.mesh.size_factor:g} would make {need} (estimated from the sizes of geometry file "
-        f"{name}); this machine has {memory / 2**30:.3g} GiB: choose --mesh-size {1.01 * hi:.2g} or larger")
+        f"{name}); this machine has {memory / 2**30:.3g} GiB: choose --mesh-size {_round_up(hi):g} or larger")
 
 
 def check_case(params: CaseParameters) -> None:
@@ -217,7 +299,7 @@ def check_case(params: CaseParameters) -> None:
     check_stiffness_ratio(params)
     if params.case == "file":
         check_file_mesh_size(params)
-    elif getattr(params.geometry, "chip_height", None) is None:    # the 3D estimate: being written
+    else:
         check_mesh_size(params)
 
 
