@@ -3,11 +3,11 @@
 :func:`gelcell.post.validity.estimate_mesh_3d` predicts gmsh's tetrahedra from
 the closed-form volumes and areas and the size fields of
 :mod:`gelcell.geometry.builtin_model3d`.  Measured against gmsh's meshes of
-both devices (chip height 0.4, no-slip walls, the default cell) at size
-factors 5 to 1 its error is at most 9.1 % (shear at 4; docs/performance.md,
-"3D devices"): the tests take 15 % at the two coarse sizes 4 and 3 (meshing
-only, no solves).  A mesh that does not fit is refused before gmsh runs, with
-the finest ``--mesh-size`` that fits.
+both devices (chip height 0.4, the default cell) at size factors 5 to 1 its
+error is at most 10.6 % with no-slip walls and 16.4 % with symmetric ones
+(docs/performance.md, "3D devices"): the tests take 15 % and 20 % at the
+coarse sizes 4 and 3 (meshing only, no solves).  A mesh that does not fit is
+refused before gmsh runs, with the finest ``--mesh-size`` that fits.
 """
 
 from __future__ import annotations
@@ -25,22 +25,22 @@ from gelcell.post import validity
 from gelcell.post.validity import check_case, check_mesh_size, estimate_mesh
 from gelcell.run.solve import solve_partitioned
 
-#: the largest relative error measured over size factors 5 to 1 is 9.1 %
-TOLERANCE = 0.15
+#: the largest relative errors measured over size factors 5 to 1: 10.6 % and 16.4 %
+TOLERANCE = {"noslip": 0.15, "symmetric": 0.2}
 
 
-def _params_3d(case: str, size: float) -> CaseParameters:
+def _params_3d(case: str, size: float, walls: str = "noslip") -> CaseParameters:
     p = CaseParameters.default(case)
-    return p.replace(geometry=dataclasses.replace(p.geometry, chip_height=0.4)).with_mesh_size(size)
+    return p.replace(geometry=dataclasses.replace(p.geometry, chip_height=0.4, walls=walls)).with_mesh_size(size)
 
 
-@pytest.mark.parametrize("size", [4.0, 3.0])
+@pytest.mark.parametrize("walls, size", [("noslip", 4.0), ("noslip", 3.0), ("symmetric", 3.0)])
 @pytest.mark.parametrize("case", ["shear", "normal"])
-def test_tetrahedra_estimate_matches_gmsh(case, size):
-    params = _params_3d(case, size)
+def test_tetrahedra_estimate_matches_gmsh(case, walls, size):
+    params = _params_3d(case, size, walls)
     counts = meshes.build_meshes(params, MPI.COMM_WORLD, whole=False).counts()
     actual = sum(counts[r]["cells"] for r in ("fluid", "gel", "cell"))
-    assert abs(estimate_mesh(params)["elements"] / actual - 1.0) < TOLERANCE
+    assert abs(estimate_mesh(params)["elements"] / actual - 1.0) < TOLERANCE[walls]
 
 
 def test_3d_mesh_that_does_not_fit_is_refused_with_a_size_that_fits():

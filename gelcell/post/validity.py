@@ -31,6 +31,8 @@ import math
 import os
 import sys
 
+import numpy as np
+
 from gelcell.case import CaseParameters
 from gelcell.errors import ModelLimitError
 from gelcell.geometry import Tag, described
@@ -157,14 +159,12 @@ def _memory(elements: float) -> float:
 # 3D devices (model.md section 10)
 #: Volume of a regular tetrahedron of edge h: h^3 / (6 sqrt(2)).
 _TETRAHEDRON = 1.0 / (6.0 * math.sqrt(2.0))
-#: gmsh's Delaunay tetrahedra per regular-tetrahedron volume of the target size: 0.55 on a unit
-#: cube at h = 0.05 and 0.035 (0.59 at h = 0.1, the surfaces' share); the same constant fits the
-#: devices' meshes with the bands below.
-GMSH_TETRAHEDRA = 0.55
-#: A refinement band narrower than this many elements of its size is meshed as this many layers
-#: (its surface's triangles carry tetrahedra of their own size): the bands are 3 / size factor
-#: elements wide, so at the coarse sizes the surfaces set the count.
-MIN_BAND_LAYERS = 1.5
+#: gmsh's Delaunay tetrahedra per regular-tetrahedron volume of the target size, fitted to the
+#: devices' meshes (chip height 0.4, both wall kinds, size factors 5 to 1); a unit cube has 0.55
+#: at h = 0.05, 0.59 at h = 0.1 (its surfaces' share), 0.69 at h = 0.2.
+GMSH_TETRAHEDRA = 0.63
+#: Quadrature points across a band (distance) and across the half height of a 3D device.
+_BAND_POINTS, _HEIGHT_POINTS = 201, 101
 #: Peak memory of a 3D run: BASE_MEMORY_3D + MEMORY_LINEAR_3D N + MEMORY_FILL_3D N^(4/3) bytes for N
 #: tetrahedra: the matrices and fields grow like N, the sparse LU's fill of a 3D mesh like N^(4/3)
 #: (nested dissection) and faster.  Fitted to the peak resident memory of the partitioned 3D runs
@@ -174,51 +174,81 @@ MEMORY_LINEAR_3D = 5.7e4
 MEMORY_FILL_3D = 1.9e3
 
 
-def _band_tetrahedra(area: float, size: float, band: float, far: float, growth: float,
-                     depth: float = math.inf) -> float:
-    """Tetrahedra in a refinement band on one side of a surface of ``area``.
+def _graded_size(distance, size: float, band: float, far: float, growth: float):
+    """A Threshold size field of :mod:`gelcell.geometry.builtin_model3d` at ``distance`` from its surface:
+    ``size`` within the band (at least one element wide), then growing by ``growth`` up to ``far``."""
+    return np.minimum(far, size + growth * np.maximum(distance - max(band, size), 0.0))
 
-    Uniform ``size`` over max(``band``, MIN_BAND_LAYERS ``size``), then the size
-    s(d) grows linearly by ``growth`` per unit distance up to ``far``; both parts
-    end at the region's ``depth`` (the floor layer's: the half height).  A
-    volume dV at size s holds dV / (s^3 / (6 sqrt 2)) regular tetrahedra, and
-    the graded part integrates to area (1/s^2 - 1/s_end^2) / (2 growth) over that.
+
+def _band_distances(size: float, band: float, far: float, growth: float):
+    """Quadrature points from the surface to where the field reaches ``far``."""
+    return np.linspace(0.0, max(band, size) + max(far - size, 0.0) / growth, _BAND_POINTS)
+
+
+def _extra_density(size, beneath):
+    """Regular tetrahedra per volume that a field of ``size`` adds where the mesh is ``beneath``
+    anyway (gmsh meshes at the minimum of the fields)."""
+    return (1.0 / np.minimum(size, beneath) ** 3 - 1.0 / beneath ** 3) / _TETRAHEDRON
+
+
+def _wall_band(area: float, height, beneath, sizes: tuple) -> float:
+    """Tetrahedra a band adds on one side of a vertical surface of ``area`` spanning the half height
+    (Γ1, Γ3, bowl, posts): the integral of the extra density over distance and height."""
+    d = _band_distances(*sizes)
+    extra = _extra_density(_graded_size(d, *sizes)[:, None], beneath[None, :])
+    return area / height[-1] * np.trapz(np.trapz(extra, height), d)
+
+
+def _cell_band(r: float, zc: float, share: float, height, beneath, sizes: tuple) -> float:
+    """Tetrahedra the band around a half-sphere cell (radius ``r``, flat face at ``zc``) adds.
+
+    At distance d the band is the spherical zone of radius rho = r + d between
+    max(0, zc - rho) and zc, of area 2 pi rho per unit height; ``share`` = 1/2
+    for a cell halved by a symmetry plane.  The band of a cell a few tenths wide
+    reaches far beyond the cell (about (h_gel - h_cell) / growth).
     """
-    uniform = min(max(band, MIN_BAND_LAYERS * size), depth)
-    end = min(far, size + growth * max(depth - uniform, 0.0))
-    graded = (1.0 / size ** 2 - 1.0 / end ** 2) / (2.0 * growth) if end > size else 0.0
-    return area * (uniform / size ** 3 + graded) / _TETRAHEDRON
+    d = _band_distances(*sizes)
+    rho = (r + d)[:, None]
+    inside = (height[None, :] >= zc - rho) & (height[None, :] <= zc)
+    extra = np.where(inside, _extra_density(_graded_size(d, *sizes)[:, None], beneath[None, :]), 0.0)
+    return share * np.trapz(2.0 * math.pi * rho[:, 0] * np.trapz(extra, height), d)
 
 
 def estimate_mesh_3d(params: CaseParameters) -> dict:
     """Estimated tetrahedra of a 3D device mesh (fluid + gel + cells) from the size fields of
     :mod:`gelcell.geometry.builtin_model3d`, before gmsh runs.
 
-    GMSH_TETRAHEDRA times the regular tetrahedra of: the fluid's and the gel's
-    volumes at their far-field sizes, the cells' at ``h_cell``; the bands of
-    ``h_layer`` on Γ1/Γ3 (into the fluid and the gel), on the gel's walls (bowl,
-    posts) and on the gel's floor (no-slip walls; ending at the half height);
-    the band of ``h_cell`` around the cells in the gel.  Against gmsh's meshes
-    of both devices (chip height 0.4, no-slip walls) at size factors 5 to 1 it
-    is within 10 %; with symmetric walls it over-estimates by 10 to 40 %.
-    Returns the element count and the memory a run needs.
+    GMSH_TETRAHEDRA times the integral of 1 / (h^3 / (6 sqrt 2)) over the device,
+    h the minimum of the fields: in the gel the floor's layer h_z(z) (no-slip
+    walls; h_gel with symmetric ones) over the whole gel volume, plus what the
+    bands of ``h_layer`` on Γ1/Γ3 and the gel's walls and the band of
+    ``h_cell`` around each cell add beneath h_z; the fluid at ``h_fluid`` plus
+    its Γ1/Γ3 band; the cells at ``h_cell``.  The closed-form volumes and areas
+    (:func:`gelcell.geometry.builtin.closed_form_measures_3d`) and a quadrature
+    over distance and height.  Against gmsh's meshes of both devices (chip
+    height 0.4) at size factors 5 to 1 it is within 12 % (no-slip walls) and
+    16 % (symmetric walls).  Returns the element count and the memory a run needs.
     """
     h = params.element_sizes()
     m = closed_form_measures_3d(params)
-    hf, hg, hl, grow = h["h_fluid"], h["h_gel"], h["h_layer"], h["growth"]
+    g = params.geometry
+    height = np.linspace(0.0, 0.5 * g.chip_height, _HEIGHT_POINTS)
+    hf, hg, grow = h["h_fluid"], h["h_gel"], h["growth"]
+    layer_gel, layer_fluid = (h["h_layer"], h["layer_band"], hg, grow), (h["h_layer"], h["layer_band"], hf, grow)
+    floor = _graded_size(height, *layer_gel) if g.walls == "noslip" else np.full_like(height, hg)
     gel = m["gel"]["area"]
     interfaces = gel.get(Tag.GAMMA1, 0.0) + gel.get(Tag.GAMMA3, 0.0)
     walls = gel.get(Tag.BOWL, 0.0) + gel.get(Tag.POST, 0.0)
-    ideal = (m["fluid"]["volume"] / hf ** 3 + m["gel"]["volume"] / hg ** 3) / _TETRAHEDRON
-    ideal += _band_tetrahedra(interfaces, hl, h["layer_band"], hf, grow)
-    ideal += _band_tetrahedra(interfaces + walls, hl, h["layer_band"], hg, grow)
-    # symmetric walls leave the floor unrefined, yet gmsh fills the thin slab with about as many
-    # tetrahedra (shear 33e3 against 38e3 at size factor 2): both take the no-slip count
-    ideal += _band_tetrahedra(gel[Tag.FLOOR], hl, h["layer_band"], hg, grow, depth=0.5 * params.geometry.chip_height)
+    count = m["fluid"]["volume"] / (_TETRAHEDRON * hf ** 3)
+    count += _wall_band(interfaces, height, np.full_like(height, hf), layer_fluid)
+    count += m["gel"]["volume"] / height[-1] * np.trapz(1.0 / (_TETRAHEDRON * floor ** 3), height)
+    count += _wall_band(interfaces + walls, height, floor, layer_gel)
     if params.with_cell:
-        ideal += m["cell"]["volume"] / (_TETRAHEDRON * h["h_cell"] ** 3)
-        ideal += _band_tetrahedra(gel[Tag.GAMMA2], h["h_cell"], h["cell_band"], hg, grow)
-    count = GMSH_TETRAHEDRA * ideal
+        count += m["cell"]["volume"] / (_TETRAHEDRON * h["h_cell"] ** 3)
+        for _, y, z, d in g.cell_list_3d():
+            share = 0.5 if params.case == "normal" and g.on_symmetry_line(y) else 1.0
+            count += _cell_band(0.5 * d, z, share, height, floor, (h["h_cell"], h["cell_band"], hg, grow))
+    count *= GMSH_TETRAHEDRA
     return {"elements": count, "memory_bytes": _memory_3d(count)}
 
 
