@@ -170,8 +170,8 @@ _BAND_POINTS, _HEIGHT_POINTS = 201, 101
 #: (nested dissection) and faster.  Fitted to the peak resident memory of the partitioned 3D runs
 #: (finite kinematics, default cell, chip height 0.4; docs/performance.md, "3D devices").
 BASE_MEMORY_3D = 0.25e9
-MEMORY_LINEAR_3D = 5.7e4
-MEMORY_FILL_3D = 1.9e3
+MEMORY_LINEAR_3D = 3.7e4
+MEMORY_FILL_3D = 2.6e3
 
 
 def _graded_size(distance, size: float, band: float, far: float, growth: float):
