@@ -3,10 +3,10 @@
 :func:`gelcell.post.validity.estimate_mesh_3d` predicts gmsh's tetrahedra from
 the closed-form volumes and areas and the size fields of
 :mod:`gelcell.geometry.builtin_model3d`.  Measured against gmsh's meshes of
-both devices (chip height 0.4, the default cell) at size factors 5 to 1 its
-error is at most 10.6 % with no-slip walls and 16.4 % with symmetric ones
-(docs/performance.md, "3D devices"): the tests take 15 % and 20 % at the
-coarse sizes 4 and 3 (meshing only, no solves).  A mesh that does not fit is
+both devices (chip height 0.4, the default cell) its error is at most 10.6 %
+with no-slip walls (size factors 5 to 1) and 16.4 % with symmetric ones (3
+and 2; docs/performance.md, "3D devices"): the tests take 15 % and 20 % at
+the coarse sizes 4 and 3 (meshing only, no solves).  A mesh that does not fit is
 refused before gmsh runs, with the finest ``--mesh-size`` that fits.
 """
 
@@ -25,7 +25,7 @@ from gelcell.post import validity
 from gelcell.post.validity import check_case, check_mesh_size, estimate_mesh
 from gelcell.run.solve import solve_partitioned
 
-#: the largest relative errors measured over size factors 5 to 1: 10.6 % and 16.4 %
+#: the largest relative errors measured: 10.6 % (no-slip, sizes 5 to 1) and 16.4 % (symmetric, 3 and 2)
 TOLERANCE = {"noslip": 0.15, "symmetric": 0.2}
 
 

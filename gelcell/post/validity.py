@@ -226,8 +226,9 @@ def estimate_mesh_3d(params: CaseParameters) -> dict:
     its Γ1/Γ3 band; the cells at ``h_cell``.  The closed-form volumes and areas
     (:func:`gelcell.geometry.builtin.closed_form_measures_3d`) and a quadrature
     over distance and height.  Against gmsh's meshes of both devices (chip
-    height 0.4) at size factors 5 to 1 it is within 12 % (no-slip walls) and
-    16 % (symmetric walls).  Returns the element count and the memory a run needs.
+    height 0.4) it is within 11 % with no-slip walls (size factors 5 to 1) and
+    17 % with symmetric ones (3 and 2).  Returns the element count and the
+    memory a run needs (direct solvers).
     """
     h = params.element_sizes()
     m = closed_form_measures_3d(params)
