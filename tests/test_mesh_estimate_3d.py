@@ -19,6 +19,7 @@ import pytest
 from mpi4py import MPI
 
 from gelcell.case import CaseParameters
+from gelcell.cli import main
 from gelcell.errors import ModelLimitError
 from gelcell.geometry import meshes
 from gelcell.post import validity
@@ -65,3 +66,13 @@ def test_a_3d_run_is_refused_before_meshing(monkeypatch):
             check_case(params)
         with pytest.raises(ModelLimitError, match="choose --mesh-size"):
             solve_partitioned(params, checks=False, verbose=False)
+
+
+def test_the_cli_refuses_a_3d_mesh_that_does_not_fit(shared_tmp_path, cli_stderr, monkeypatch):
+    monkeypatch.setattr(meshes, "_mesh_with_gmsh", lambda *a, **k: pytest.fail("meshed before the refusal"))
+    out = shared_tmp_path / "out"
+    code = main(["run", "normal", "--height", "0.4", "--mesh-size", "0.25", "--quiet", "--out", str(out)])
+    err = cli_stderr()
+    assert code == 4, err                   # exit 4: the model's limits (about 10 TB)
+    assert "--mesh-size 0.25 would make about" in err and "choose --mesh-size" in err, err
+    assert not out.exists()
