@@ -73,6 +73,6 @@ def test_the_cli_refuses_a_3d_mesh_that_does_not_fit(shared_tmp_path, cli_stderr
     out = shared_tmp_path / "out"
     code = main(["run", "normal", "--height", "0.4", "--mesh-size", "0.25", "--quiet", "--out", str(out)])
     err = cli_stderr()
-    assert code == 4, err                   # exit 4: the model's limits (about 10 TB)
+    assert code == 4, err                   # exit 4: the model's limits (about 6 TB)
     assert "--mesh-size 0.25 would make about" in err and "choose --mesh-size" in err, err
     assert not out.exists()
