@@ -160,8 +160,8 @@ def _memory(elements: float) -> float:
 #: Volume of a regular tetrahedron of edge h: h^3 / (6 sqrt(2)).
 _TETRAHEDRON = 1.0 / (6.0 * math.sqrt(2.0))
 #: gmsh's Delaunay tetrahedra per regular-tetrahedron volume of the target size, fitted to the
-#: devices' meshes (chip height 0.4, both wall kinds, size factors 5 to 1); a unit cube has 0.55
-#: at h = 0.05, 0.59 at h = 0.1 (its surfaces' share), 0.69 at h = 0.2.
+#: devices' meshes (chip height 0.4; no-slip walls at size factors 5 to 1, symmetric at 3 and 2);
+#: a unit cube has 0.55 at h = 0.05, 0.59 at h = 0.1 (its surfaces' share), 0.69 at h = 0.2.
 GMSH_TETRAHEDRA = 0.63
 #: Quadrature points across a band (distance) and across the half height of a 3D device.
 _BAND_POINTS, _HEIGHT_POINTS = 201, 101
