@@ -6,7 +6,8 @@ Before solving (:func:`check_case`, raising :class:`ModelLimitError`):
 * the cell's stiffness must be within :data:`STIFFNESS_RATIO_RANGE` of the gel's
   (:func:`check_stiffness_ratio`);
 * the mesh must fit in this machine's memory (:func:`estimate_mesh`), estimated
-  from the element sizes and the closed-form areas and lengths, before gmsh runs;
+  from the element sizes and the closed-form areas and lengths (a 3D device's
+  volumes and areas, :func:`estimate_mesh_3d`), before gmsh runs;
   a geometry file's mesh from coarse probe meshes of its own sizes
   (:func:`estimate_file_mesh`);
 
@@ -30,15 +31,17 @@ import math
 import os
 import sys
 
+import numpy as np
+
 from gelcell.case import CaseParameters
 from gelcell.errors import ModelLimitError
 from gelcell.geometry import Tag, described
-from gelcell.geometry.builtin import closed_form_measures
+from gelcell.geometry.builtin import closed_form_measures, closed_form_measures_3d
 from gelcell.geometry.files.read import reference_elements
 from gelcell.machine import MEMORY_SHARE, machine_memory
 
 __all__ = ["representable_ca", "check_representable", "check_stiffness_ratio",
-           "STIFFNESS_RATIO_RANGE", "estimate_mesh", "check_mesh_size", "estimate_file_mesh",
+           "STIFFNESS_RATIO_RANGE", "estimate_mesh", "estimate_mesh_3d", "check_mesh_size", "estimate_file_mesh",
            "check_file_mesh_size", "check_case",
            "machine_memory", "model_warnings", "MAX_DISPLACEMENT_GRADIENT", "MAX_CELL_STRAIN", "MAX_NEGLECTED"]
 
@@ -129,7 +132,10 @@ def estimate_mesh(params: CaseParameters) -> dict:
     on the gel's side) adds its uniform part and the graded part that grows to the
     far-field size.  Against the meshes of both devices at size factors 3 to 0.5
     it is within 20 %.  Returns the element count and the memory a run needs.
+    A 3D device (a geometry with ``chip_height``): :func:`estimate_mesh_3d`.
     """
+    if getattr(params.geometry, "dimension", 2) == 3:
+        return estimate_mesh_3d(params)
     h = params.element_sizes()
     m = closed_form_measures(params)
     far = max(h["h_fluid"], h["h_gel"])
@@ -150,6 +156,113 @@ def _memory(elements: float) -> float:
     return BASE_MEMORY + MEMORY_PER_ELEMENT * elements * math.log2(max(elements, 2.0))
 
 
+# 3D devices (model.md section 10)
+#: Volume of a regular tetrahedron of edge h: h^3 / (6 sqrt(2)).
+_TETRAHEDRON = 1.0 / (6.0 * math.sqrt(2.0))
+#: gmsh's Delaunay tetrahedra per regular-tetrahedron volume of the target size, fitted to the
+#: devices' meshes (chip height 0.4; no-slip walls at size factors 5 to 1, symmetric at 3 and 2);
+#: a unit cube has 0.55 at h = 0.05, 0.59 at h = 0.1 (its surfaces' share), 0.69 at h = 0.2.
+GMSH_TETRAHEDRA = 0.63
+#: Quadrature points across a band (distance) and across the half height of a 3D device.
+_BAND_POINTS, _HEIGHT_POINTS = 201, 101
+#: Peak memory of a 3D run: BASE_MEMORY_3D + MEMORY_LINEAR_3D N + MEMORY_FILL_3D N^(4/3) bytes for N
+#: tetrahedra: the matrices and fields grow like N, the sparse LU's fill of a 3D mesh like N^(4/3)
+#: (nested dissection) and faster.  Fitted to the peak resident memory of the partitioned 3D runs
+#: (finite kinematics, default cell, chip height 0.4; docs/performance.md, "3D devices").
+BASE_MEMORY_3D = 0.25e9
+MEMORY_LINEAR_3D = 3.7e4
+MEMORY_FILL_3D = 2.6e3
+
+
+def _graded_size(distance, size: float, band: float, far: float, growth: float):
+    """A Threshold size field of :mod:`gelcell.geometry.builtin_model3d` at ``distance`` from its surface:
+    ``size`` within the band (at least one element wide), then growing by ``growth`` up to ``far``."""
+    return np.minimum(far, size + growth * np.maximum(distance - max(band, size), 0.0))
+
+
+def _band_distances(size: float, band: float, far: float, growth: float):
+    """Quadrature points from the surface to where the field reaches ``far``."""
+    return np.linspace(0.0, max(band, size) + max(far - size, 0.0) / growth, _BAND_POINTS)
+
+
+def _extra_density(size, beneath):
+    """Regular tetrahedra per volume that a field of ``size`` adds where the mesh is ``beneath``
+    anyway (gmsh meshes at the minimum of the fields)."""
+    return (1.0 / np.minimum(size, beneath) ** 3 - 1.0 / beneath ** 3) / _TETRAHEDRON
+
+
+def _wall_band(area: float, height, beneath, sizes: tuple) -> float:
+    """Tetrahedra a band adds on one side of a vertical surface of ``area`` spanning the half height
+    (Γ1, Γ3, bowl, posts): the integral of the extra density over distance and height."""
+    d = _band_distances(*sizes)
+    extra = _extra_density(_graded_size(d, *sizes)[:, None], beneath[None, :])
+    return area / height[-1] * np.trapz(np.trapz(extra, height), d)
+
+
+def _cell_band(r: float, zc: float, share: float, height, beneath, sizes: tuple) -> float:
+    """Tetrahedra the band around a half-sphere cell (radius ``r``, flat face at ``zc``) adds.
+
+    At distance d the band is the spherical zone of radius rho = r + d between
+    max(0, zc - rho) and zc, of area 2 pi rho per unit height; ``share`` = 1/2
+    for a cell halved by a symmetry plane.  The band of a cell a few tenths wide
+    reaches far beyond the cell (about (h_gel - h_cell) / growth).
+    """
+    d = _band_distances(*sizes)
+    rho = (r + d)[:, None]
+    inside = (height[None, :] >= zc - rho) & (height[None, :] <= zc)
+    extra = np.where(inside, _extra_density(_graded_size(d, *sizes)[:, None], beneath[None, :]), 0.0)
+    return share * np.trapz(2.0 * math.pi * rho[:, 0] * np.trapz(extra, height), d)
+
+
+def estimate_mesh_3d(params: CaseParameters) -> dict:
+    """Estimated tetrahedra of a 3D device mesh (fluid + gel + cells) from the size fields of
+    :mod:`gelcell.geometry.builtin_model3d`, before gmsh runs.
+
+    GMSH_TETRAHEDRA times the integral of 1 / (h^3 / (6 sqrt 2)) over the device,
+    h the minimum of the fields: in the gel the floor's layer h_z(z) (no-slip
+    walls; h_gel with symmetric ones) over the whole gel volume, plus what the
+    bands of ``h_layer`` on Γ1/Γ3 and the gel's walls and the band of
+    ``h_cell`` around each cell add beneath h_z; the fluid at ``h_fluid`` plus
+    its Γ1/Γ3 band; the cells at ``h_cell``.  The closed-form volumes and areas
+    (:func:`gelcell.geometry.builtin.closed_form_measures_3d`) and a quadrature
+    over distance and height.  Against gmsh's meshes of both devices (chip
+    height 0.4) it is within 11 % with no-slip walls (size factors 5 to 1) and
+    17 % with symmetric ones (3 and 2).  Returns the element count and the
+    memory a run needs (direct solvers).
+    """
+    h = params.element_sizes()
+    m = closed_form_measures_3d(params)
+    g = params.geometry
+    height = np.linspace(0.0, 0.5 * g.chip_height, _HEIGHT_POINTS)
+    hf, hg, grow = h["h_fluid"], h["h_gel"], h["growth"]
+    layer_gel, layer_fluid = (h["h_layer"], h["layer_band"], hg, grow), (h["h_layer"], h["layer_band"], hf, grow)
+    floor = _graded_size(height, *layer_gel) if g.walls == "noslip" else np.full_like(height, hg)
+    gel = m["gel"]["area"]
+    interfaces = gel.get(Tag.GAMMA1, 0.0) + gel.get(Tag.GAMMA3, 0.0)
+    walls = gel.get(Tag.BOWL, 0.0) + gel.get(Tag.POST, 0.0)
+    count = m["fluid"]["volume"] / (_TETRAHEDRON * hf ** 3)
+    count += _wall_band(interfaces, height, np.full_like(height, hf), layer_fluid)
+    count += m["gel"]["volume"] / height[-1] * np.trapz(1.0 / (_TETRAHEDRON * floor ** 3), height)
+    count += _wall_band(interfaces + walls, height, floor, layer_gel)
+    if params.with_cell:
+        count += m["cell"]["volume"] / (_TETRAHEDRON * h["h_cell"] ** 3)
+        for _, y, z, d in g.cell_list_3d():
+            share = 0.5 if params.case == "normal" and g.on_symmetry_line(y) else 1.0
+            count += _cell_band(0.5 * d, z, share, height, floor, (h["h_cell"], h["cell_band"], hg, grow))
+    count *= GMSH_TETRAHEDRA
+    return {"elements": count, "memory_bytes": _memory_3d(count)}
+
+
+def _memory_3d(elements: float) -> float:
+    return BASE_MEMORY_3D + MEMORY_LINEAR_3D * elements + MEMORY_FILL_3D * elements ** (4.0 / 3.0)
+
+
+def _round_up(size: float) -> float:
+    """``size`` rounded up to two significant digits (the suggested size factor must fit itself)."""
+    scale = 10.0 ** (math.floor(math.log10(size)) - 1)
+    return math.ceil(size / scale - 1e-9) * scale
+
+
 def check_mesh_size(params: CaseParameters, memory: int | None = None) -> dict:
     """Raise :class:`ModelLimitError` if the estimated mesh does not fit in ``memory``."""
     est = estimate_mesh(params)
@@ -167,7 +280,7 @@ def check_mesh_size(params: CaseParameters, memory: int | None = None) -> dict:
         raise ModelLimitError(
             f"--mesh-size {params.mesh.size_factor:g} would make about {est['elements']:.2g} elements, "
             f"which need about {est['memory_bytes'] / 2**30:.3g} GiB; this machine has "
-            f"{memory / 2**30:.3g} GiB: choose --mesh-size {1.01 * hi:.2g} or larger")
+            f"{memory / 2**30:.3g} GiB: choose --mesh-size {_round_up(hi):g} or larger")
     return est
 
 
@@ -207,7 +320,7 @@ def check_file_mesh_size(params: CaseParameters, memory: int | None = None) -> d
         lo, hi = (lo, mid) if _memory(est["elements"] * (params.mesh.size_factor / mid) ** 2) <= budget else (mid, hi)
     raise ModelLimitError(
         f"--mesh-size {params.mesh.size_factor:g} would make {need} (estimated from the sizes of geometry file "
-        f"{name}); this machine has {memory / 2**30:.3g} GiB: choose --mesh-size {1.01 * hi:.2g} or larger")
+        f"{name}); this machine has {memory / 2**30:.3g} GiB: choose --mesh-size {_round_up(hi):g} or larger")
 
 
 def check_case(params: CaseParameters) -> None:
@@ -217,7 +330,7 @@ def check_case(params: CaseParameters) -> None:
     check_stiffness_ratio(params)
     if params.case == "file":
         check_file_mesh_size(params)
-    elif getattr(params.geometry, "chip_height", None) is None:    # the 3D estimate: being written
+    else:
         check_mesh_size(params)
 
 
