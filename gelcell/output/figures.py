@@ -7,6 +7,19 @@ collective call); ``gelcell.output.drawing.render_device_figures`` draws them on
 started before the solve, which imports matplotlib while the run solves and
 draws while the run writes its other files (XDMF, profiles, records), the
 figures shared among forked processes, one per core, since the run then only waits.
+
+3D devices (model.md section 10) are drawn as sections, with the 2D figures'
+names: gel_velocity, gel_pressure, gel_displacement_von_mises,
+cell_displacement and cell_traction_parts show the mid-height plane
+z = H/2 (the paper's view; the mesh's own triangles there, the facets of the
+symmetry plane), gamma1_profiles the mid-height line of Gamma1.  Two more
+figures show the vertical plane y = y_cell through the (first) cell's centre
+(without a cell: the default cell position), the plane that holds the flow
+direction x and the height z, so the flow past the cell and the floor's
+boundary layer are seen: gel_velocity_vertical.png (|v_f| and the in-plane
+streamlines of (v_f,x, v_f,z)) and gel_displacement_von_mises_vertical.png;
+the fields are evaluated at the points of a regular grid there
+(:class:`VerticalSection`).
 """
 
 from __future__ import annotations
@@ -23,13 +36,16 @@ import types
 
 import numpy as np
 
-from dolfinx import fem
+from mpi4py import MPI
+
+from dolfinx import fem, geometry
 
 from femtools.functions import gather_owned_rows
 from gelcell.output.fields import DerivedFields
 from gelcell.post.fields import DeviceFields
 
-__all__ = ["figure_data", "FigureWorker", "FigureWorkerError", "figure_worker", "collect_figures", "P1Gather"]
+__all__ = ["figure_data", "FigureWorker", "FigureWorkerError", "figure_worker", "collect_figures", "P1Gather",
+           "MidHeightSection", "VerticalSection"]
 
 #: the package's parent directory, so that the worker imports this very gelcell
 _ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -46,19 +62,24 @@ def figure_data(fields: DeviceFields, profiles: dict, summary: dict, overlay: di
     p = fields.params
     derived = derived or DerivedFields(fields)
     gel = derived.gel
-    on_gel = P1Gather(fields.gel_mesh).gather
+    three_d = fields.gel_mesh.geometry.dim == 3
+    on_gel = MidHeightSection(fields.gel_mesh, fields.gel_tags).gather if three_d else P1Gather(fields.gel_mesh).gather
     data = {"speed": on_gel(gel["v_f"]), "pressure": on_gel(gel["p"]), "disp": on_gel(gel["u_s"]),
             "vm": on_gel(gel["von_mises_network"]),
             "parts": {k: on_gel(gel[f"von_mises_{k}_part"]) for k in ("pressure", "brinkman", "network", "total")},
             "cell": None}
     if fields.cell_displacement is not None:
-        data["cell"] = P1Gather(fields.cell_mesh).gather(derived.cell["u_c"])
+        on_cell = (MidHeightSection(fields.cell_mesh, fields.cell_tags) if three_d else P1Gather(fields.cell_mesh))
+        data["cell"] = on_cell.gather(derived.cell["u_c"])
+    data["vertical"] = _vertical_data(fields, gel) if three_d else None
     if fields.comm.rank != 0:
         return None
     data.update(
         V=p.to_report(1.0, "velocity"), L=p.to_report(1.0, "length"), S=p.to_report(1.0, "stress"),
         label=p.label, wide=bool(fields.layout.wide), profiles=profiles["Gamma1"], overlay=overlay,
-        cells=[types.SimpleNamespace(name=c.name, centre=tuple(float(v) for v in c.centre),
+        section=f"mid-height plane z = {_mid_height(fields):.4g}" if three_d else None,
+        # in 3D the cells as the mid-height plane cuts them: centre (x, y), the sphere's diameter
+        cells=[types.SimpleNamespace(name=c.name, centre=tuple(float(v) for v in c.centre[:2]),
                                      diameter=float(c.diameter)) for c in fields.cells],
         cells_summary=summary.get("cells") or [{"centroid_displacement": summary["cell.centroid_displacement"]}])
     return data
@@ -149,11 +170,12 @@ def figure_worker(wanted: bool, comm):
 
 
 class P1Gather:
-    """Vertex coordinates and triangles of a mesh gathered on rank 0 once, and field values at the vertices.
+    """Vertex coordinates and cells of a mesh gathered on rank 0 once, and field values at the vertices.
 
     ``gather(f)`` interpolates a Function (any Lagrange space on this mesh,
     scalar or vector; no form compilation) into P1 and returns
-    ``(x, triangles, values)`` on rank 0 and ``None`` elsewhere.
+    ``(x, cells, values)`` on rank 0 and ``None`` elsewhere: ``x`` (n, gdim),
+    ``cells`` the triangles (2D) or tetrahedra (3D) as vertex rows.
     """
 
     def __init__(self, msh):
@@ -163,10 +185,12 @@ class P1Gather:
         imap = Q.dofmap.index_map
         n_owned = imap.size_local
         self._n_owned, self._start, self._n = n_owned, imap.local_range[0], imap.size_global
-        x = Q.tabulate_dof_coordinates()[:n_owned, :2]
+        tdim = msh.topology.dim
+        x = Q.tabulate_dof_coordinates()[:n_owned, :msh.geometry.dim]
         gidx = imap.local_to_global(np.arange(n_owned + imap.num_ghosts, dtype=np.int32))
-        n_cells = msh.topology.index_map(2).size_local
-        tri = gidx[Q.dofmap.list.array.reshape(-1, 3)[:n_cells]]
+        self._gidx = gidx
+        n_cells = msh.topology.index_map(tdim).size_local
+        tri = gidx[Q.dofmap.list.array.reshape(-1, tdim + 1)[:n_cells]]
         self.x = gather_owned_rows(self.comm, self._start, x, self._n)
         triangles = self.comm.gather(tri, root=0)
         self.triangles = np.vstack(triangles) if self.comm.rank == 0 else None
@@ -187,6 +211,172 @@ class P1Gather:
         if self.comm.rank != 0:
             return None
         return self.x, self.triangles, (V[:, 0] if bs == 1 else V)
+
+    def facet_triangles(self, facet_tags, tag: int) -> np.ndarray | None:
+        """The facets tagged ``tag`` (of a 3D mesh) as rows of global vertex (P1 dof) indices, on rank 0.
+
+        Each facet once: the owned ones of every rank.
+        """
+        msh = self.msh
+        fdim = msh.topology.dim - 1
+        msh.topology.create_connectivity(fdim, fdim + 1)
+        msh.topology.create_connectivity(fdim + 1, fdim)
+        f_to_c, c_to_f = msh.topology.connectivity(fdim, fdim + 1), msh.topology.connectivity(fdim + 1, fdim)
+        n_owned = msh.topology.index_map(fdim).size_local
+        facets = facet_tags.indices[(facet_tags.values == tag) & (facet_tags.indices < n_owned)]
+        Q = self._space(False)
+        closure = Q.dofmap.dof_layout.entity_closure_dofs
+        rows = np.empty((len(facets), fdim + 1), dtype=np.int64)
+        for i, f in enumerate(facets):
+            c = f_to_c.links(f)[0]
+            local = int(np.flatnonzero(c_to_f.links(c) == f)[0])
+            rows[i] = self._gidx[Q.dofmap.cell_dofs(c)[closure(fdim, local)]]
+        parts = self.comm.gather(rows, root=0)
+        return np.vstack(parts) if self.comm.rank == 0 else None
+
+
+class MidHeightSection:
+    """The mid-height plane z = H/2 of a 3D region mesh: its symmetry-plane facets (Tag.SYMMETRY_MID).
+
+    ``gather(f)`` returns ``(x, triangles, values)`` on rank 0 (None elsewhere)
+    as :class:`P1Gather` does for a planar mesh: ``x`` (n, 2) the (x, y) of
+    the vertices on the plane, ``values`` the field's vertex values there, with
+    all its components (v_z = u_z = 0 on the plane by symmetry).
+    """
+
+    def __init__(self, msh, facet_tags):
+        from gelcell.geometry import Tag
+        self.p1 = P1Gather(msh)
+        tri = self.p1.facet_triangles(facet_tags, int(Tag.SYMMETRY_MID))
+        if msh.comm.rank == 0:
+            if tri.shape[0] == 0:
+                raise ValueError("no mid-height symmetry plane (SYMMETRY_MID facets) in a 3D mesh to draw")
+            self.used, local = np.unique(tri, return_inverse=True)
+            self.triangles = local.reshape(tri.shape)
+            self.x = self.p1.x[self.used, :2]
+
+    def gather(self, f: fem.Function):
+        out = self.p1.gather(f)
+        if out is None:
+            return None
+        return self.x, self.triangles, out[2][self.used]
+
+
+class VerticalSection:
+    """Fields of a 3D mesh on a regular grid of the vertical plane y = ``y0``, for figures.
+
+    The grid spans ``x_range`` and the mesh's z extent with spacing about
+    ``spacing``; points on the domain's boundary are moved inside by 1e-9 of
+    the mesh's size.  Each rank evaluates the points in its owned cells
+    (bounding-box tree), rank 0 keeps each point's value from the lowest rank
+    that found it.  ``gather(f)`` returns ``(x, triangles, values)`` on rank 0:
+    ``x`` (n, 2) the (x, z) of the grid points inside the mesh, ``triangles``
+    the grid's triangles with all three corners inside, ``values`` the
+    field's values (all components).
+    """
+
+    def __init__(self, msh, y0: float, x_range: tuple[float, float], spacing: float):
+        comm, tdim = msh.comm, msh.topology.dim
+        self.comm, self.msh = comm, msh
+        x = msh.geometry.x
+        lo = np.array([comm.allreduce(float(x[:, k].min()), op=MPI.MIN) for k in range(3)])
+        hi = np.array([comm.allreduce(float(x[:, k].max()), op=MPI.MAX) for k in range(3)])
+        eps = 1e-9 * float(np.max(hi - lo))
+        x0, x1 = max(x_range[0], lo[0] + eps), min(x_range[1], hi[0] - eps)
+        z0, z1 = lo[2] + eps, hi[2] - eps
+        y0 = float(np.clip(y0, lo[1] + eps, hi[1] - eps))
+        nx, nz = (max(2, int(np.ceil(extent / spacing)) + 1) for extent in (x1 - x0, z1 - z0))
+        gx, gz = np.meshgrid(np.linspace(x0, x1, nx), np.linspace(z0, z1, nz))
+        self.shape = gz.shape
+        points = np.column_stack([gx.ravel(), np.full(gx.size, y0), gz.ravel()])
+        owned = np.arange(msh.topology.index_map(tdim).size_local, dtype=np.int32)
+        tree = geometry.BoundingBoxTree(msh, tdim, owned)
+        colliding = geometry.compute_colliding_cells(msh, geometry.compute_collisions(tree, points), points)
+        found = np.array([len(colliding.links(i)) > 0 for i in range(len(points))], dtype=bool)
+        self.index = np.flatnonzero(found)
+        self.cells = np.array([colliding.links(i)[0] for i in self.index], dtype=np.int32)
+        self.points = points
+        gathered = comm.gather(self.index, root=0)
+        if comm.rank == 0:
+            # each point from the lowest rank that has it
+            self.source = np.full(len(points), -1, dtype=np.int64)
+            for rank in reversed(range(comm.size)):
+                self.source[gathered[rank]] = rank
+            self.gathered_index = gathered
+            inside = self.source >= 0
+            self.used = np.flatnonzero(inside)
+            renumber = np.full(len(points), -1, dtype=np.int64)
+            renumber[self.used] = np.arange(len(self.used))
+            self.x = np.column_stack([gx.ravel(), gz.ravel()])[self.used]
+            self.triangles = renumber[_grid_triangles(*self.shape, inside)]
+
+    def gather(self, f: fem.Function):
+        bs = f.function_space.dofmap.index_map_bs
+        values = (f.eval(self.points[self.index], self.cells) if len(self.index)
+                  else np.empty((0, bs))).reshape(-1, bs)
+        parts = self.comm.gather(values, root=0)
+        if self.comm.rank != 0:
+            return None
+        out = np.zeros((len(self.points), bs))
+        for rank, (index, vals) in enumerate(zip(self.gathered_index, parts)):
+            mine = self.source[index] == rank
+            out[index[mine]] = vals[mine]
+        out = out[self.used]
+        return self.x, self.triangles, (out[:, 0] if bs == 1 else out)
+
+
+def _grid_triangles(nz: int, nx: int, inside: np.ndarray) -> np.ndarray:
+    """The two triangles of every square of an (nz, nx) grid (row-major points), the ones whose corners are all
+    ``inside``."""
+    k = np.arange(nz * nx).reshape(nz, nx)
+    a, b, c, d = k[:-1, :-1].ravel(), k[:-1, 1:].ravel(), k[1:, :-1].ravel(), k[1:, 1:].ravel()
+    tri = np.vstack([np.column_stack([a, b, d]), np.column_stack([a, d, c])])
+    return tri[inside[tri].all(axis=1)]
+
+
+def _vertical_data(fields: DeviceFields, gel: dict) -> dict | None:
+    """The gel's fields on the vertical plane y = y_cell through the first cell's centre (rank 0; None elsewhere).
+
+    The window: x within 2.5 H (at least 5 cell radii) of the cell's centre, the mesh's z extent; the grid's
+    spacing the smaller of a sixth of the cell's radius and 1/300 of the window's width.
+    """
+    p, msh = fields.params, fields.gel_mesh
+    height = p.geometry.chip_height or 2 * float(msh.comm.allreduce(msh.geometry.x[:, 2].max(), op=MPI.MAX))
+    if fields.cells:
+        centre, diameter = np.asarray(fields.cells[0].centre, dtype=float), float(fields.cells[0].diameter)
+    else:
+        x, y, d = (p.geometry.cell_list() or [_middle(msh) + (0.06,)])[0]
+        centre, diameter = np.array([x, y, 0.5 * height]), float(d)
+    r = 0.5 * diameter
+    half = max(1.25 * height, 5 * r)
+    spacing = min(r / 6, 2 * half / 300)
+    section = VerticalSection(fields.gel_mesh, float(centre[1]), (centre[0] - half, centre[0] + half), spacing)
+    out = {"speed": section.gather(gel["v_f"]), "disp": section.gather(gel["u_s"]),
+           "vm": section.gather(gel["von_mises_network"])}
+    if fields.comm.rank != 0:
+        return None
+    # the cells the plane cuts, as the circles it cuts them in
+    cut = [(c, 0.25 * float(c.diameter)**2 - (float(c.centre[1]) - float(centre[1]))**2) for c in fields.cells]
+    out.update(y=float(centre[1]), components=(0, 2),
+               cells=[types.SimpleNamespace(name=c.name, centre=(float(c.centre[0]), float(c.centre[2])),
+                                            diameter=2 * float(np.sqrt(r2))) for c, r2 in cut if r2 > 0])
+    return out
+
+
+def _mid_height(fields: DeviceFields) -> float:
+    """z = H/2, the plane the 3D figures show (a geometry file without chip_height: the mesh's top)."""
+    H = fields.params.geometry.chip_height
+    if H is not None:
+        return 0.5 * float(H)
+    msh = fields.gel_mesh
+    return float(msh.comm.allreduce(float(msh.geometry.x[:, 2].max()), op=MPI.MAX))
+
+
+def _middle(msh) -> tuple[float, float]:
+    """The (x, y) centre of a mesh's bounding box (every rank)."""
+    x, comm = msh.geometry.x, msh.comm
+    return tuple(0.5 * (comm.allreduce(float(x[:, k].min()), op=MPI.MIN)
+                        + comm.allreduce(float(x[:, k].max()), op=MPI.MAX)) for k in range(2))
 
 
 def collect_figures(tmp: str, data: dict, worker: FigureWorker | None) -> list[str]:
