@@ -221,10 +221,14 @@ def _fluid_interface_residuals(fields: DeviceFields, name: str, tag: int) -> dic
     c, t_fluid, F_f_load, T_gel_load = r["c"], r["t_fluid"], r["F_load"], r["G_load"]
     V_on_gel, gel_nodes, proj, Vg = r["V_on_gel"], r["gel_nodes"], r["proj"], r["Vg"]
     free = proj.free
-    # the fluid's traction on the gel as the field the gel was given (ends pinned to 0)
-    T = fem.Function(Vg)
     gdim = gm.geometry.dim
-    gel_nodes.to_function(np.column_stack([proj.of_nodal_load(-t_fluid[:, i]) for i in range(gdim)]), T)
+    # the fluid's traction on the gel as the field the gel was given: 2D with the ends pinned to 0 (every
+    # component); 3D as the fluid recovers it, a component pinned where another boundary fixes it
+    if gdim == 2:
+        T = fem.Function(Vg)
+        gel_nodes.to_function(np.column_stack([proj.of_nodal_load(-t_fluid[:, i]) for i in range(gdim)]), T)
+    else:
+        T = _recovered_traction(fields, tag, r)
     N_load = T_gel_load - F_f_load        # network partial traction, tested
     n, taus = _interface_frame(proj)
     nn = fem.Constant(gm, n)
@@ -264,17 +268,8 @@ def _finite_fluid_interface_residuals(fields: DeviceFields, name: str, tag: int)
     c, t_fluid, F_load, G_load = r["c"], r["t_fluid"], r["F_load"], r["G_load"]
     V_on_gel, gel_nodes, proj, Vg, Vfl, Q = (r[k] for k in ("V_on_gel", "gel_nodes", "proj", "Vg", "Vfl", "Q"))
     free = proj.free
-    # the fluid's traction on the gel as the fluid recovers it: a component is pinned (zero) only at the
-    # nodes where another boundary fixes that velocity component (fluid.solver)
-    b = fields.layout.boundaries
-    T = fem.Function(Vg)
-    columns = []
     gdim = gm.geometry.dim
-    for k in range(gdim):
-        fixing = [t for tags, comps in b.fluid_dirichlet_tags() if k in comps for t in tags]
-        proj_k = _TraceProjection(Q, fields.gel_tags, tag, _points_on(Vfl, fields.fluid_tags, fixing))
-        columns.append(proj_k.of_nodal_load(-t_fluid[:, k]))
-    gel_nodes.to_function(np.column_stack(columns), T)
+    T = _recovered_traction(fields, tag, r)
     j, n = surface_stretch(u, fem.Constant(gm, d), ufl.FacetNormal(gm))
     phi_s = gel_lagrangian.solid_fraction(u, c)
     tangential = lambda a: a - ufl.dot(a, n) * n  # noqa: E731
@@ -299,6 +294,23 @@ def _finite_fluid_interface_residuals(fields: DeviceFields, name: str, tag: int)
         "I15+I17": [F_load - phase[0] - phase[1] + phase[2], F_load, *phase],
     }
     return _relative(terms, free)
+
+
+def _recovered_traction(fields: DeviceFields, tag: int, r: dict) -> fem.Function:
+    """The fluid's traction on the gel as the fluid recovers it (fluid.solver), on the gel's space.
+
+    A component is pinned (zero) only at the nodes where another boundary
+    fixes that velocity component; ``r``: :func:`_interface_reactions`.
+    """
+    b = fields.layout.boundaries
+    T = fem.Function(r["Vg"])
+    columns = []
+    for k in range(r["Vg"].mesh.geometry.dim):
+        fixing = [t for tags, comps in b.fluid_dirichlet_tags() if k in comps for t in tags]
+        proj_k = _TraceProjection(r["Q"], fields.gel_tags, tag, _points_on(r["Vfl"], fields.fluid_tags, fixing))
+        columns.append(proj_k.of_nodal_load(-r["t_fluid"][:, k]))
+    r["gel_nodes"].to_function(np.column_stack(columns), T)
+    return T
 
 
 def _interface_frame(proj) -> tuple[np.ndarray, list[np.ndarray]]:
