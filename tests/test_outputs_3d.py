@@ -75,6 +75,19 @@ def test_gamma1_profile_is_the_mid_height_line(shear):
     assert prof["v_fx"].max() > 0 and prof["u_sx"].max() > 0
 
 
+def test_profile_files_have_the_3d_columns(shear, shared_tmp_path):
+    from gelcell.output.profiles import write_profiles
+    prof = write_profiles(str(shared_tmp_path), shear, COMM)["Gamma1"]
+    COMM.Barrier()
+    with h5py.File(shared_tmp_path / "gamma1_profiles.h5", "r") as h5:
+        assert set(h5) == set(prof) and "z = 0.2" in h5.attrs["section"]
+        for key, values in prof.items():
+            assert np.array_equal(h5[key][:], values), key
+    with open(shared_tmp_path / "gamma1_profiles.csv") as f:
+        header, first = f.readline().strip().split(","), f.readline().strip().split(",")
+    assert header == list(prof) and float(first[header.index("X")]) == pytest.approx(prof["X"][0], rel=1e-11)
+
+
 def _bowl_area(g) -> float:
     """The circular segment below the chord y = 0: R^2 (theta - sin theta cos theta)."""
     R, t = g.radius, g.half_angle
