@@ -137,12 +137,6 @@ def test_bad_3d_input_refused_before_meshing(geometry, name):
         CaseParameters.from_dict({"case": {"name": "shear"}, "geometry": geometry})
 
 
-def test_3d_device_not_runnable_yet():
-    from gelcell.post.validity import check_case
-    with pytest.raises(ParameterError, match=r"'geometry.chip_height' = 0.4: 3D devices are not runnable yet"):
-        check_case(_case("normal", 1.0))
-
-
 # --------------------------------------------------------------------------- conditions of the 3D devices
 def _conditioned(b) -> dict[str, set[str]]:
     """Per region, the tag names that carry a condition or an interface (the outlet: zero traction)."""

@@ -9,7 +9,7 @@ here is checked on construction: a bad value raises one
 
 from gelcell.case.config import (METHODS, PETSC_FIELDS, SOLVER_KINDS, SWEEPS, OutputSettings, RunConfig,
                                  SolverSettings, SweepSettings, load_run_config, merge_tables, resolve)
-from gelcell.case.devices import FileContents, FileGeometry, NormalGeometry, ShearGeometry
+from gelcell.case.devices import WALLS, FileContents, FileGeometry, NormalGeometry, ShearGeometry
 from gelcell.case.inflow import Waveform, parse_inflow
 from gelcell.case.materials import CellMaterial, Dimensional, Physics
 from gelcell.case.meshsizes import MeshSizes
@@ -21,4 +21,4 @@ __all__ = ["CaseParameters", "Physics", "Dimensional", "CellMaterial", "ShearGeo
            "FileGeometry", "FileContents", "MeshSizes", "TimeSettings", "time_scales", "Waveform", "parse_inflow",
            "RunConfig", "SolverSettings", "OutputSettings", "SweepSettings", "resolve", "load_run_config",
            "merge_tables", "CASES", "ALL_CASES", "KINEMATICS", "GAMMA2", "DEFAULT_GAMMA2", "REPORT_UNITS",
-           "METHODS", "SWEEPS", "SOLVER_KINDS", "PETSC_FIELDS"]
+           "METHODS", "SWEEPS", "SOLVER_KINDS", "PETSC_FIELDS", "WALLS"]

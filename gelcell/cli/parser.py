@@ -14,7 +14,7 @@ import argparse
 import os
 import typing
 
-from gelcell.case import CASES, GAMMA2, SOLVER_KINDS, SWEEPS
+from gelcell.case import CASES, GAMMA2, SOLVER_KINDS, SWEEPS, WALLS
 from gelcell.errors import ParameterError
 
 __all__ = ["build_parser", "command_line_keys", "OPTION_KEYS", "SCHEMES", "ACCELERATIONS"]
@@ -59,14 +59,17 @@ def _number(text: str) -> float:
 
 
 def _cells(texts: list[str]) -> list[list[float]]:
+    """X,Y,D (planar) or X,Y,Z,D (a 3D device) per cell."""
     cells = []
     for text in texts:
         try:
-            x, y, d = (float(v) for v in text.split(","))
+            values = [float(v) for v in text.split(",")]
         except ValueError:
-            raise ParameterError(f"--cells {text!r}: each cell is X,Y,D (centre and diameter in units of L0), "
-                                 f"e.g. --cells 1.9,-0.2,0.06 2.1,-0.3,0.06") from None
-        cells.append([x, y, d])
+            values = []
+        if len(values) not in (3, 4):
+            raise ParameterError(f"--cells {text!r}: each cell is X,Y,D, or X,Y,Z,D on a 3D device (centre and "
+                                 f"diameter in units of L0), e.g. --cells 1.9,-0.2,0.06 2.1,-0.3,0.06")
+        cells.append(values)
     return cells
 
 
@@ -85,6 +88,8 @@ OPTION_KEYS: dict[str, tuple[str, typing.Callable]] = {
     "cells": ("geometry.cells", _cells),
     "cell": ("case.cell", bool),
     "e": ("geometry.e", float),
+    "height": ("geometry.chip_height", float),
+    "walls": ("geometry.walls", str),
     "ca": ("physics.ca", float),
     "cell_moduli": ("case.cell_moduli", float),
     "gel_moduli": ("case.gel_moduli", float),
@@ -137,10 +142,17 @@ def add_case_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--geometry", metavar="FILE.geo|FILE.msh",
                    help="your own device: a gmsh geometry file with named physical groups "
                         "(docs/geometry-files.md); replaces the positional device name (geometry.file)")
-    g.add_argument("--cells", nargs="+", metavar="X,Y,D",
-                   help="several cells in a built-in device: centre x, y and diameter of each, in units of L0 "
-                        "(a cell of the normal device centred on y = 0.5 is cut by the symmetry line) "
-                        "(geometry.cells)")
+    g.add_argument("--cells", nargs="+", metavar="X,Y[,Z],D",
+                   help="several cells in a built-in device: centre x, y (and z on a 3D device, which must be "
+                        "--height/2) and diameter of each, in units of L0 (a cell of the normal device centred "
+                        "on y = 0.5 is cut by the symmetry line) (geometry.cells)")
+    g.add_argument("--height", type=_number, metavar="H",
+                   help="a 3D device (model.md section 10): the planar device extruded to the chip's height H "
+                        "in units of L0 (0.4 = 100 µm), computed on z in [0, H/2] with a symmetry plane at "
+                        "mid-height and spherical cells there (geometry.chip_height; default: the planar device)")
+    g.add_argument("--walls", choices=WALLS, default=None,
+                   help="a 3D device's floor and lid: noslip (default: glass walls, the gel bonded) or "
+                        "symmetric (symmetry planes: the slab, equal to the planar device) (geometry.walls)")
     g.add_argument("--config", metavar="CASE.toml",
                    help="TOML case file (tables [case] [physics] [dimensional] [cell] [geometry] [mesh] [solver] "
                         "[coupling] [time] [output] [sweep]); command-line options override it")

@@ -22,8 +22,8 @@ COLUMNS = ("t", "inflow") + DeviceQuantities.TIMESERIES + ("iterations", "residu
 def write_timeseries(directory: str, rows: list[dict], params: CaseParameters, comm: MPI.Comm) -> None:
     if comm.rank != 0:
         return
-    # several cells: each cell's columns after the common ones
-    columns = COLUMNS + tuple(c for c in rows[-1] if c not in COLUMNS and c.startswith("cell_"))
+    # a 3D centroid_z and, with several cells, each cell's columns after the common ones
+    columns = COLUMNS + tuple(c for c in rows[-1] if c not in COLUMNS and c.startswith(("cell_", "centroid_")))
     data = {c: np.array([r.get(c, np.nan) for r in rows], dtype=float) for c in columns}
     with open(os.path.join(directory, "timeseries.csv"), "w", newline="") as fh:
         w = csv.writer(fh)

@@ -66,7 +66,7 @@ class _PointValues:
     def __init__(self, msh):
         self.space = fem.FunctionSpace(msh, ("DG", 1))
         n = self.space.dofmap.index_map.size_local
-        self.points = self.space.tabulate_dof_coordinates()[:n, :2]
+        self.points = self.space.tabulate_dof_coordinates()[:n, :msh.geometry.dim]
         self.comm = msh.comm
 
     def __call__(self, expr) -> np.ndarray:
@@ -88,7 +88,8 @@ class _PointValues:
         """Global (min, max) and the location of the max."""
         v = values if mask is None else values[mask]
         x = self.points if mask is None else self.points[mask]
-        local_max = (float(v.max()), x[int(np.argmax(v))].tolist()) if v.size else (-np.inf, [np.nan, np.nan])
+        nowhere = [np.nan] * self.points.shape[1]
+        local_max = (float(v.max()), x[int(np.argmax(v))].tolist()) if v.size else (-np.inf, nowhere)
         local_min = float(v.min()) if v.size else np.inf
         gathered = self.comm.allgather(local_max)
         vmax, where = max(gathered, key=lambda t: t[0])
@@ -153,6 +154,7 @@ class DeviceQuantities:
         gm = fields.gel_mesh
         c = self.coefficients = fields.gel_coefficients()
         u = fields.displacement
+        self.axes = "xyz"[:gm.geometry.dim]      # the components of points and vectors
         self.gel_points = _PointValues(gm)
         dx_gel = ufl.Measure("dx", domain=gm)
         _, theta_gel, _ = gel_forms.kinematics(u, c.d)
@@ -170,8 +172,8 @@ class DeviceQuantities:
             dc, sc = k(p.displacement_scale), k(p.stress_scale)
             dx_cell = ufl.Measure("dx", domain=cm)
             _, theta_cell, _ = cell_forms.kinematics(uc, dc)
-            self._forms.update(centroid_x=fem.form(uc[0] * dx_cell), centroid_y=fem.form(uc[1] * dx_cell),
-                               dA_cell=fem.form(theta_cell * dx_cell),
+            self._forms.update({f"centroid_{x}": fem.form(uc[k] * dx_cell) for k, x in enumerate(self.axes)})
+            self._forms.update(dA_cell=fem.form(theta_cell * dx_cell),
                                dA_abs_cell=fem.form(abs(theta_cell) * dx_cell))
             self._area["cell"] = _assemble(fem.form(fem.Constant(cm, 1.0) * dx_cell), comm)
             self.cell_points = _PointValues(cm)
@@ -191,8 +193,7 @@ class DeviceQuantities:
                     elements = ct.find(spec.region_tag)
                     self._cell_parts.append({
                         "spec": spec,
-                        "centroid_x": fem.form(uc[0] * dx_k(spec.region_tag)),
-                        "centroid_y": fem.form(uc[1] * dx_k(spec.region_tag)),
+                        **{f"centroid_{x}": fem.form(uc[k] * dx_k(spec.region_tag)) for k, x in enumerate(self.axes)},
                         "area": _assemble(fem.form(fem.Constant(cm, 1.0) * dx_k(spec.region_tag)), comm),
                         "points": _entity_mask(self.cell_points.space, elements, n_dg),
                         "nodes": _entity_mask(Vc, elements, n_p2)})
@@ -223,10 +224,10 @@ class DeviceQuantities:
         for part in parts:
             spec = part["spec"]
             if part["centroid_x"] is None:
-                centroid = [d * self._integral(f"centroid_{x}") / self._area["cell"] for x in "xy"]
+                centroid = [d * self._integral(f"centroid_{x}") / self._area["cell"] for x in self.axes]
                 max_u = d * _max_norm(f.cell_displacement)
             else:
-                centroid = [d * _assemble(part[f"centroid_{x}"], self.comm) / part["area"] for x in "xy"]
+                centroid = [d * _assemble(part[f"centroid_{x}"], self.comm) / part["area"] for x in self.axes]
                 norms = np.linalg.norm(owned_values(f.cell_displacement), axis=1)
                 max_u = d * global_max(norms[part["nodes"]], self.comm)
             # a cell cut by a symmetry line: the whole (mirrored) cell's centroid moves along the line
@@ -255,22 +256,22 @@ class DeviceQuantities:
                 "volume_change_share_of_cell": dA_cell / total if total != 0 else 0.0}
 
     def timeseries_row(self) -> dict[str, float]:
-        """The per-window quantities (``TIMESERIES``, the cell ones the extremes over the cells; with
-        several cells also ``cell_K_centroid_x/y`` and ``cell_K_strain_max``), paper units; NaN for cell
-        ones without a cell."""
+        """The per-window quantities (``TIMESERIES``, the cell ones the extremes over the cells; in 3D
+        also ``centroid_z``; with several cells also ``cell_K_centroid_x/y(/z)`` and ``cell_K_strain_max``),
+        paper units; NaN for cell ones without a cell."""
         f = self.fields
         d = f.params.displacement_scale
-        row = dict.fromkeys(self.TIMESERIES, math.nan)
+        row = dict.fromkeys(self.TIMESERIES + tuple(f"centroid_{x}" for x in self.axes[2:]), math.nan)
         states = self.cell_states()
         cell = combine_cells(states) if states else None
         if len(states) > 1:
             # several cells: each cell's centroid and peak strain too (columns cell_K_...)
             for k, st in enumerate(states, start=1):
-                row[f"cell_{k}_centroid_x"], row[f"cell_{k}_centroid_y"] = st["centroid_displacement"]
+                row.update({f"cell_{k}_centroid_{x}": v for x, v in zip(self.axes, st["centroid_displacement"])})
                 row[f"cell_{k}_strain_max"] = st["von_mises_strain"][1]
         if cell is not None:
-            row.update(centroid_x=cell["centroid_displacement"][0], centroid_y=cell["centroid_displacement"][1],
-                       max_cell_displacement=cell["max_displacement"],
+            row.update({f"centroid_{x}": v for x, v in zip(self.axes, cell["centroid_displacement"])})
+            row.update(max_cell_displacement=cell["max_displacement"],
                        cell_strain_min=cell["von_mises_strain"][0], cell_strain_max=cell["von_mises_strain"][1],
                        cell_stress_min=cell["von_mises_stress"][0], cell_stress_max=cell["von_mises_stress"][1])
         row.update(max_interstitial_speed=_max_norm(f.interstitial_velocity),
@@ -290,6 +291,7 @@ class DeviceQuantities:
         grad_norm = self._expression("grad", ufl.sqrt(ufl.inner(ufl.grad(u), ufl.grad(u))))
         finite = p.kinematics == "finite"
         out = {
+            "geometry": _geometry_block(p, len(self.axes)),
             "model": {
                 "kinematics": p.kinematics,
                 "approximation": ("finite strain: total Lagrangian gel and cell, the fluid domain following "
@@ -309,7 +311,7 @@ class DeviceQuantities:
         states = self.cell_states()
         if states:
             # traction parts: von Mises of each stress part in the gel within one diameter of each cell
-            I = ufl.Identity(2)
+            I = ufl.Identity(len(self.axes))
             parts = {"pressure": -pp * I, "brinkman": (1 - self._phi_s) * self._sigma_f,
                      "network": self._phi_s * self._sigma_s, "total": f.gel_forms.total_stress(v_f, u, pp, c)}
             values = {k: self._expression(f"part_{k}", von_mises(e)) for k, e in parts.items()}
@@ -326,6 +328,13 @@ class DeviceQuantities:
         return out
 
 
+def _geometry_block(p: CaseParameters, dim: int) -> dict:
+    """``geometry`` of the summary: the dimension, and a 3D built-in device's chip height and walls."""
+    height = getattr(p.geometry, "chip_height", None)
+    return {"dimension": dim, "chip_height": height,
+            "walls": None if height is None else p.geometry.walls}
+
+
 def summarize(fields: DeviceFields) -> dict:
     """Every quantity of model.md section 7, dimensionless (paper units) and SI."""
     return DeviceQuantities(fields).summary()
@@ -337,14 +346,16 @@ def _to_si(out: dict, p: CaseParameters) -> dict:
     V = p.to_report(1.0, "velocity")
     S = p.to_report(1.0, "stress")
     g = out["gel"]
+    dim = out["geometry"]["dimension"]
+    measure = {2: ("area", "µm^2"), 3: ("volume", "µm^3")}[dim]     # of the volume change
     si = {"model": dict(out["model"]),
-          "units": {"length": "µm", "velocity": "µm/s", "stress": "mPa", "area": "µm^2"},
+          "units": {"length": "µm", "velocity": "µm/s", "stress": "mPa", measure[0]: measure[1]},
           "gel": {"max_interstitial_speed": g["max_interstitial_speed"] * V,
                   "max_network_displacement": g["max_network_displacement"] * L,
                   "max_network_von_mises": g["max_network_von_mises"] * S,
                   "max_network_von_mises_location": [x * L for x in g["max_network_von_mises_location"]],
-                  "volume_change_below_gamma1": g["volume_change_below_gamma1"] * L * L,
-                  "local_volume_change_magnitude": g["local_volume_change_magnitude"] * L * L,
+                  "volume_change_below_gamma1": g["volume_change_below_gamma1"] * L ** dim,
+                  "local_volume_change_magnitude": g["local_volume_change_magnitude"] * L ** dim,
                   "relative_volume_change_below_gamma1": g["relative_volume_change_below_gamma1"],
                   "volume_change_share_of_cell": g["volume_change_share_of_cell"]}}
     si["cell"] = None if out["cell"] is None else _cell_si(out["cell"], L, S)

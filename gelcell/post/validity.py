@@ -9,8 +9,6 @@ Before solving (:func:`check_case`, raising :class:`ModelLimitError`):
   from the element sizes and the closed-form areas and lengths, before gmsh runs;
   a geometry file's mesh from coarse probe meshes of its own sizes
   (:func:`estimate_file_mesh`);
-* a 3D built-in device (``geometry.chip_height``) is not runnable yet
-  (:func:`check_planar`, a :class:`~gelcell.errors.ParameterError`).
 
 After solving (:func:`model_warnings`), by the case's kinematics
 (``model.kinematics``):
@@ -33,13 +31,13 @@ import os
 import sys
 
 from gelcell.case import CaseParameters
-from gelcell.errors import ModelLimitError, ParameterError
+from gelcell.errors import ModelLimitError
 from gelcell.geometry import Tag, described
 from gelcell.geometry.builtin import closed_form_measures
 from gelcell.geometry.files.read import reference_elements
 from gelcell.machine import MEMORY_SHARE, machine_memory
 
-__all__ = ["check_planar", "representable_ca", "check_representable", "check_stiffness_ratio",
+__all__ = ["representable_ca", "check_representable", "check_stiffness_ratio",
            "STIFFNESS_RATIO_RANGE", "estimate_mesh", "check_mesh_size", "estimate_file_mesh",
            "check_file_mesh_size", "check_case",
            "machine_memory", "model_warnings", "MAX_DISPLACEMENT_GRADIENT", "MAX_CELL_STRAIN", "MAX_NEGLECTED"]
@@ -212,24 +210,14 @@ def check_file_mesh_size(params: CaseParameters, memory: int | None = None) -> d
         f"{name}); this machine has {memory / 2**30:.3g} GiB: choose --mesh-size {1.01 * hi:.2g} or larger")
 
 
-def check_planar(params: CaseParameters) -> None:
-    """A 3D built-in device (``[geometry] chip_height``) is meshed by gelcell.geometry but not run or
-    meshed by the commands yet: refused by name before anything is meshed."""
-    height = getattr(params.geometry, "chip_height", None)
-    if height is not None:
-        raise ParameterError(f"parameter 'geometry.chip_height' = {height:g}: 3D devices are not runnable yet "
-                             f"(model.md section 10; leave chip_height out for the planar device)")
-
-
 def check_case(params: CaseParameters) -> None:
     """Every check that must pass before a case is meshed or solved (a geometry file is read and checked)."""
     described(params)
-    check_planar(params)
     check_representable(params)
     check_stiffness_ratio(params)
     if params.case == "file":
         check_file_mesh_size(params)
-    else:
+    elif getattr(params.geometry, "chip_height", None) is None:    # the 3D estimate: being written
         check_mesh_size(params)
 
 
