@@ -237,3 +237,27 @@ def test_xdmf_of_the_3d_fields(shear, shared_tmp_path):
         with h5py.File(shared_tmp_path / f"{name}.h5", "r") as h5:
             vector = h5["Function/V/0" if name == "fluid" else "Function/u_c/0"][:]
         assert vector.shape[1] == 3
+
+
+def test_sections_reproduce_a_linear_field(shear):
+    """Both sections give f = x + 2y + 3z exactly (a P2 field reproduces it on the curved mesh): the mid-height
+    facets at their vertices, and the grid of the plane z = H/2 (the fallback for meshes without the
+    symmetry plane) at its points, which cover the same area up to the grid's boundary band."""
+    from dolfinx import fem
+    from gelcell.output.figures import MidHeightSection, PlaneSection
+    msh = shear.gel_mesh
+    f = fem.Function(fem.FunctionSpace(msh, ("Lagrange", 2)))
+    f.interpolate(lambda x: x[0] + 2 * x[1] + 3 * x[2])
+    g = shear.params.geometry
+    spacing = 0.01
+    exact = MidHeightSection(msh, shear.gel_tags).gather(f)
+    plane = PlaneSection(msh, 2, 0.5 * HEIGHT, None, spacing)
+    grid = plane.gather(f)
+    if COMM.rank != 0:
+        return
+    assert abs(plane.offset - 0.5 * HEIGHT) < 1e-8         # moved inside the mesh's bounding box
+    for (x, tri, values), z in ((exact, 0.5 * HEIGHT), (grid, plane.offset)):
+        assert np.abs(values - (x[:, 0] + 2 * x[:, 1] + 3 * z)).max() < 1e-12
+    area = _bowl_area(g) - math.pi * (0.5 * g.cell_diameter) ** 2
+    perimeter = 2 * g.radius * g.half_angle + 2 * g.radius * math.sin(g.half_angle) + math.pi * g.cell_diameter
+    assert abs(_area(grid[0], grid[1]) - area) <= 2 * spacing * perimeter

@@ -371,8 +371,8 @@ def draw_transient_figures(directory: str, rows: list[dict], summary: dict, para
 
 
 def _trajectory_figure(rows: list[dict], tr: dict, params):
-    """The centroid's x and y against t (y on its own axis, steady values and t50/t90/t99 marked);
-    without a cell, max |u_s|."""
+    """The centroid's x and y (3D: and z, if it moves) against t (y, z on their own axis, steady values and
+    t50/t90/t99 marked); without a cell, max |u_s|."""
     seconds = params.to_si(np.array([r["t"] for r in rows]), "time")
     L = params.to_report(1.0, "length")
     fig, ax = plt.subplots(figsize=(8, 4.5))
@@ -406,12 +406,18 @@ def _draw_centroids(ax, rows: list[dict], seconds: np.ndarray, L: float, params)
             "x of the cell that moves most")
     ax.axhline(x[-1], color="C0", ls=":", lw=0.8, label=f"final x {x[-1]:.4g} µm")
     ax.set_ylabel("centroid displacement x [µm]", color="C0")
-    if np.any(y != 0):
-        # the much smaller y motion on its own axis (zero by symmetry in the normal-flow device)
+    # 3D: z (zero by symmetry for a cell at mid-height, then not drawn)
+    z = L * np.array([r.get("centroid_z", 0.0) for r in rows])
+    if np.any(y != 0) or np.any(z != 0):
+        # the much smaller y (and z) motion on its own axis (y zero by symmetry in the normal-flow device)
         ay = ax.twinx()
         ay.plot(seconds, y, "C3-", label="centroid y")
         ay.axhline(y[-1], color="C3", ls=":", lw=0.8)
-        ay.set_ylabel("centroid displacement y [µm]", color="C3")
+        if np.any(z != 0):
+            ay.plot(seconds, z, "C2-", label="centroid z")
+            ay.axhline(z[-1], color="C2", ls=":", lw=0.8)
+        ay.set_ylabel("centroid displacement y [µm]" if not np.any(z != 0) else "centroid displacement y, z [µm]",
+                      color="C3")
     ax.set_title(f"{params.label}: the cell's centroid from rest" if n_cells <= 1 else
                  f"{params.label}: the cells' centroids from rest")
 

@@ -19,7 +19,7 @@ direction x and the height z, so the flow past the cell and the floor's
 boundary layer are seen: gel_velocity_vertical.png (|v_f| and the in-plane
 streamlines of (v_f,x, v_f,z)) and gel_displacement_von_mises_vertical.png;
 the fields are evaluated at the points of a regular grid there
-(:class:`VerticalSection`).
+(:class:`PlaneSection`).
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ from gelcell.output.fields import DerivedFields
 from gelcell.post.fields import DeviceFields
 
 __all__ = ["figure_data", "FigureWorker", "FigureWorkerError", "figure_worker", "collect_figures", "P1Gather",
-           "MidHeightSection", "VerticalSection"]
+           "MidHeightSection", "PlaneSection", "mid_height_section"]
 
 #: the package's parent directory, so that the worker imports this very gelcell
 _ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -63,13 +63,15 @@ def figure_data(fields: DeviceFields, profiles: dict, summary: dict, overlay: di
     derived = derived or DerivedFields(fields)
     gel = derived.gel
     three_d = fields.gel_mesh.geometry.dim == 3
-    on_gel = MidHeightSection(fields.gel_mesh, fields.gel_tags).gather if three_d else P1Gather(fields.gel_mesh).gather
+    on_gel = (mid_height_section(fields, fields.gel_mesh, fields.gel_tags) if three_d
+              else P1Gather(fields.gel_mesh)).gather
     data = {"speed": on_gel(gel["v_f"]), "pressure": on_gel(gel["p"]), "disp": on_gel(gel["u_s"]),
             "vm": on_gel(gel["von_mises_network"]),
             "parts": {k: on_gel(gel[f"von_mises_{k}_part"]) for k in ("pressure", "brinkman", "network", "total")},
             "cell": None}
     if fields.cell_displacement is not None:
-        on_cell = (MidHeightSection(fields.cell_mesh, fields.cell_tags) if three_d else P1Gather(fields.cell_mesh))
+        on_cell = (mid_height_section(fields, fields.cell_mesh, fields.cell_tags) if three_d
+                   else P1Gather(fields.cell_mesh))
         data["cell"] = on_cell.gather(derived.cell["u_c"])
     data["vertical"] = _vertical_data(fields, gel) if three_d else None
     if fields.comm.rank != 0:
@@ -188,7 +190,6 @@ class P1Gather:
         tdim = msh.topology.dim
         x = Q.tabulate_dof_coordinates()[:n_owned, :msh.geometry.dim]
         gidx = imap.local_to_global(np.arange(n_owned + imap.num_ghosts, dtype=np.int32))
-        self._gidx = gidx
         n_cells = msh.topology.index_map(tdim).size_local
         tri = gidx[Q.dofmap.list.array.reshape(-1, tdim + 1)[:n_cells]]
         self.x = gather_owned_rows(self.comm, self._start, x, self._n)
@@ -212,83 +213,103 @@ class P1Gather:
             return None
         return self.x, self.triangles, (V[:, 0] if bs == 1 else V)
 
-    def facet_triangles(self, facet_tags, tag: int) -> np.ndarray | None:
-        """The facets tagged ``tag`` (of a 3D mesh) as rows of global vertex (P1 dof) indices, on rank 0.
-
-        Each facet once: the owned ones of every rank.
-        """
-        msh = self.msh
-        fdim = msh.topology.dim - 1
-        msh.topology.create_connectivity(fdim, fdim + 1)
-        msh.topology.create_connectivity(fdim + 1, fdim)
-        f_to_c, c_to_f = msh.topology.connectivity(fdim, fdim + 1), msh.topology.connectivity(fdim + 1, fdim)
-        n_owned = msh.topology.index_map(fdim).size_local
-        facets = facet_tags.indices[(facet_tags.values == tag) & (facet_tags.indices < n_owned)]
-        Q = self._space(False)
-        closure = Q.dofmap.dof_layout.entity_closure_dofs
-        rows = np.empty((len(facets), fdim + 1), dtype=np.int64)
-        for i, f in enumerate(facets):
-            c = f_to_c.links(f)[0]
-            local = int(np.flatnonzero(c_to_f.links(c) == f)[0])
-            rows[i] = self._gidx[Q.dofmap.cell_dofs(c)[closure(fdim, local)]]
-        parts = self.comm.gather(rows, root=0)
-        return np.vstack(parts) if self.comm.rank == 0 else None
-
 
 class MidHeightSection:
     """The mid-height plane z = H/2 of a 3D region mesh: its symmetry-plane facets (Tag.SYMMETRY_MID).
 
     ``gather(f)`` returns ``(x, triangles, values)`` on rank 0 (None elsewhere)
     as :class:`P1Gather` does for a planar mesh: ``x`` (n, 2) the (x, y) of
-    the vertices on the plane, ``values`` the field's vertex values there, with
-    all its components (v_z = u_z = 0 on the plane by symmetry).
+    the vertices on the plane, ``values`` the field's P1 interpolant there
+    (its vertex values), all its components (v_z = u_z = 0 on the plane by
+    symmetry).  Only the plane's vertices are gathered: each rank sends those
+    of its owned facets there, with the owners' values.
     """
 
     def __init__(self, msh, facet_tags):
         from gelcell.geometry import Tag
-        self.p1 = P1Gather(msh)
-        tri = self.p1.facet_triangles(facet_tags, int(Tag.SYMMETRY_MID))
-        if msh.comm.rank == 0:
-            if tri.shape[0] == 0:
-                raise ValueError("no mid-height symmetry plane (SYMMETRY_MID facets) in a 3D mesh to draw")
-            self.used, local = np.unique(tri, return_inverse=True)
-            self.triangles = local.reshape(tri.shape)
-            self.x = self.p1.x[self.used, :2]
+        self.msh, self.comm = msh, msh.comm
+        self._spaces: dict[bool, fem.FunctionSpace] = {}
+        Q = self._space(False)
+        fdim = msh.topology.dim - 1
+        msh.topology.create_connectivity(fdim, fdim + 1)
+        msh.topology.create_connectivity(fdim + 1, fdim)
+        f_to_c, c_to_f = msh.topology.connectivity(fdim, fdim + 1), msh.topology.connectivity(fdim + 1, fdim)
+        n_owned = msh.topology.index_map(fdim).size_local
+        facets = facet_tags.indices[(facet_tags.values == int(Tag.SYMMETRY_MID)) & (facet_tags.indices < n_owned)]
+        if self.comm.allreduce(len(facets), op=MPI.SUM) == 0:
+            raise ValueError("no mid-height symmetry plane (SYMMETRY_MID facets) in a 3D mesh to draw")
+        closure = Q.dofmap.dof_layout.entity_closure_dofs
+        local = np.empty((len(facets), fdim + 1), dtype=np.int32)
+        for i, f in enumerate(facets):
+            c = f_to_c.links(f)[0]
+            k = int(np.flatnonzero(c_to_f.links(c) == f)[0])
+            local[i] = Q.dofmap.cell_dofs(c)[closure(fdim, k)]
+        self.dofs, corner = np.unique(local, return_inverse=True)
+        global_dofs = Q.dofmap.index_map.local_to_global(self.dofs.astype(np.int32)).astype(np.int64)
+        x = Q.tabulate_dof_coordinates()[self.dofs, :2]
+        parts = self.comm.gather((global_dofs, x, global_dofs[corner.reshape(local.shape)]), root=0)
+        if self.comm.rank == 0:
+            self.used = np.unique(np.concatenate([g for g, _, _ in parts]))
+            self._rows = [np.searchsorted(self.used, g) for g, _, _ in parts]
+            self.x = np.zeros((self.used.size, 2))
+            for rows, (_, xr, _) in zip(self._rows, parts):
+                self.x[rows] = xr
+            self.triangles = np.searchsorted(self.used, np.vstack([t for _, _, t in parts]))
+
+    def _space(self, vector: bool) -> fem.FunctionSpace:
+        if vector not in self._spaces:
+            self._spaces[vector] = (fem.VectorFunctionSpace(self.msh, ("Lagrange", 1)) if vector
+                                    else fem.FunctionSpace(self.msh, ("Lagrange", 1)))
+        return self._spaces[vector]
 
     def gather(self, f: fem.Function):
-        out = self.p1.gather(f)
-        if out is None:
+        Q = self._space(bool(f.ufl_shape))
+        g = fem.Function(Q)
+        g.interpolate(f)
+        g.x.scatter_forward()           # the ghosts hold their owners' values: every rank sends the same
+        bs = Q.dofmap.index_map_bs
+        parts = self.comm.gather(g.x.array.reshape(-1, bs)[self.dofs], root=0)
+        if self.comm.rank != 0:
             return None
-        return self.x, self.triangles, out[2][self.used]
+        out = np.zeros((self.used.size, bs))
+        for rows, values in zip(self._rows, parts):
+            out[rows] = values
+        return self.x, self.triangles, (out[:, 0] if bs == 1 else out)
 
 
-class VerticalSection:
-    """Fields of a 3D mesh on a regular grid of the vertical plane y = ``y0``, for figures.
+class PlaneSection:
+    """Fields of a 3D mesh on a regular grid of the plane x_normal = ``offset``, for figures.
 
-    The grid spans ``x_range`` and the mesh's z extent with spacing about
-    ``spacing``; points on the domain's boundary are moved inside by 1e-9 of
-    the mesh's size.  Each rank evaluates the points in its owned cells
-    (bounding-box tree), rank 0 keeps each point's value from the lowest rank
-    that found it.  ``gather(f)`` returns ``(x, triangles, values)`` on rank 0:
-    ``x`` (n, 2) the (x, z) of the grid points inside the mesh, ``triangles``
-    the grid's triangles with all three corners inside, ``values`` the
-    field's values (all components).
+    ``normal``: 1 (the vertical plane y = offset, grid axes x and z) or 2 (the
+    horizontal plane z = offset, axes x and y).  The grid spans ``first_range``
+    along its first axis (x; None: the mesh's extent) and the mesh's extent
+    along the second, with spacing about ``spacing``; points on the domain's
+    bounding box are moved inside by 1e-9 of the mesh's size.  Each rank
+    evaluates the points in its owned cells (bounding-box tree), rank 0 keeps
+    each point's value from the lowest rank that found it.  ``gather(f)``
+    returns ``(x, triangles, values)`` on rank 0: ``x`` (n, 2) the in-plane
+    coordinates of the grid points inside the mesh, ``triangles`` the grid's
+    triangles with all three corners inside, ``values`` the field's values
+    (all components).
     """
 
-    def __init__(self, msh, y0: float, x_range: tuple[float, float], spacing: float):
+    def __init__(self, msh, normal: int, offset: float, first_range: tuple[float, float] | None, spacing: float):
         comm, tdim = msh.comm, msh.topology.dim
         self.comm, self.msh = comm, msh
-        x = msh.geometry.x
-        lo = np.array([comm.allreduce(float(x[:, k].min()), op=MPI.MIN) for k in range(3)])
-        hi = np.array([comm.allreduce(float(x[:, k].max()), op=MPI.MAX) for k in range(3)])
+        lo, hi = _bounds(msh)
         eps = 1e-9 * float(np.max(hi - lo))
-        x0, x1 = max(x_range[0], lo[0] + eps), min(x_range[1], hi[0] - eps)
-        z0, z1 = lo[2] + eps, hi[2] - eps
-        y0 = float(np.clip(y0, lo[1] + eps, hi[1] - eps))
-        nx, nz = (max(2, int(np.ceil(extent / spacing)) + 1) for extent in (x1 - x0, z1 - z0))
-        gx, gz = np.meshgrid(np.linspace(x0, x1, nx), np.linspace(z0, z1, nz))
-        self.shape = gz.shape
-        points = np.column_stack([gx.ravel(), np.full(gx.size, y0), gz.ravel()])
+        a, b = {1: (0, 2), 2: (0, 1)}[normal]
+        first_range = first_range or (lo[a], hi[a])
+        a0, a1 = max(first_range[0], lo[a] + eps), min(first_range[1], hi[a] - eps)
+        b0, b1 = lo[b] + eps, hi[b] - eps
+        na, nb = (max(2, int(np.ceil(extent / spacing)) + 1) for extent in (a1 - a0, b1 - b0))
+        ga, gb = np.meshgrid(np.linspace(a0, a1, na), np.linspace(b0, b1, nb))
+        self.shape = gb.shape
+        points = np.zeros((ga.size, 3))
+        points[:, a], points[:, b] = ga.ravel(), gb.ravel()
+        #: the plane's position, moved inside the bounding box
+        self.offset = float(np.clip(offset, lo[normal] + eps, hi[normal] - eps))
+        points[:, normal] = self.offset
         owned = np.arange(msh.topology.index_map(tdim).size_local, dtype=np.int32)
         tree = geometry.BoundingBoxTree(msh, tdim, owned)
         colliding = geometry.compute_colliding_cells(msh, geometry.compute_collisions(tree, points), points)
@@ -307,7 +328,7 @@ class VerticalSection:
             self.used = np.flatnonzero(inside)
             renumber = np.full(len(points), -1, dtype=np.int64)
             renumber[self.used] = np.arange(len(self.used))
-            self.x = np.column_stack([gx.ravel(), gz.ravel()])[self.used]
+            self.x = np.column_stack([ga.ravel(), gb.ravel()])[self.used]
             self.triangles = renumber[_grid_triangles(*self.shape, inside)]
 
     def gather(self, f: fem.Function):
@@ -323,6 +344,21 @@ class VerticalSection:
             out[index[mine]] = vals[mine]
         out = out[self.used]
         return self.x, self.triangles, (out[:, 0] if bs == 1 else out)
+
+
+def mid_height_section(fields: DeviceFields, msh, facet_tags):
+    """The mid-height plane of a 3D region mesh: its SYMMETRY_MID facets (:class:`MidHeightSection`), or, a
+    mesh without them (a geometry file of the whole height), a grid of the plane z = H/2
+    (:class:`PlaneSection`, spacing 1/400 of the mesh's larger planar extent, at most a sixth of the
+    smallest cell's radius)."""
+    from gelcell.geometry import Tag
+    has_plane = msh.comm.allreduce(bool(np.any(facet_tags.values == int(Tag.SYMMETRY_MID))), op=MPI.LOR)
+    if has_plane:
+        return MidHeightSection(msh, facet_tags)
+    lo, hi = _bounds(msh)
+    extent = float(np.max(hi[:2] - lo[:2]))
+    spacing = min([extent / 400] + [float(c.diameter) / 12 for c in fields.cells])
+    return PlaneSection(msh, 2, _mid_height(fields), None, spacing)
 
 
 def _grid_triangles(nz: int, nx: int, inside: np.ndarray) -> np.ndarray:
@@ -341,7 +377,7 @@ def _vertical_data(fields: DeviceFields, gel: dict) -> dict | None:
     spacing the smaller of a sixth of the cell's radius and 1/300 of the window's width.
     """
     p, msh = fields.params, fields.gel_mesh
-    height = p.geometry.chip_height or 2 * float(msh.comm.allreduce(msh.geometry.x[:, 2].max(), op=MPI.MAX))
+    height = p.geometry.chip_height or 2 * _mid_height(fields)
     if fields.cells:
         centre, diameter = np.asarray(fields.cells[0].centre, dtype=float), float(fields.cells[0].diameter)
     else:
@@ -350,7 +386,7 @@ def _vertical_data(fields: DeviceFields, gel: dict) -> dict | None:
     r = 0.5 * diameter
     half = max(1.25 * height, 5 * r)
     spacing = min(r / 6, 2 * half / 300)
-    section = VerticalSection(fields.gel_mesh, float(centre[1]), (centre[0] - half, centre[0] + half), spacing)
+    section = PlaneSection(msh, 1, float(centre[1]), (centre[0] - half, centre[0] + half), spacing)
     out = {"speed": section.gather(gel["v_f"]), "disp": section.gather(gel["u_s"]),
            "vm": section.gather(gel["von_mises_network"])}
     if fields.comm.rank != 0:
@@ -364,19 +400,30 @@ def _vertical_data(fields: DeviceFields, gel: dict) -> dict | None:
 
 
 def _mid_height(fields: DeviceFields) -> float:
-    """z = H/2, the plane the 3D figures show (a geometry file without chip_height: the mesh's top)."""
+    """z = H/2, the plane the 3D figures show; a geometry file without chip_height: the top of a half-height
+    mesh (it has the SYMMETRY_MID plane), else the middle of the gel's z extent."""
+    from gelcell.geometry import Tag
     H = fields.params.geometry.chip_height
     if H is not None:
         return 0.5 * float(H)
     msh = fields.gel_mesh
-    return float(msh.comm.allreduce(float(msh.geometry.x[:, 2].max()), op=MPI.MAX))
+    lo, hi = _bounds(msh)
+    half = msh.comm.allreduce(bool(np.any(fields.gel_tags.values == int(Tag.SYMMETRY_MID))), op=MPI.LOR)
+    return float(hi[2]) if half else 0.5 * float(lo[2] + hi[2])
+
+
+def _bounds(msh) -> tuple[np.ndarray, np.ndarray]:
+    """The corners (lo, hi) of a mesh's bounding box (every rank)."""
+    x, comm = msh.geometry.x, msh.comm
+    lo = np.array([comm.allreduce(float(x[:, k].min()) if len(x) else np.inf, op=MPI.MIN) for k in range(3)])
+    hi = np.array([comm.allreduce(float(x[:, k].max()) if len(x) else -np.inf, op=MPI.MAX) for k in range(3)])
+    return lo, hi
 
 
 def _middle(msh) -> tuple[float, float]:
     """The (x, y) centre of a mesh's bounding box (every rank)."""
-    x, comm = msh.geometry.x, msh.comm
-    return tuple(0.5 * (comm.allreduce(float(x[:, k].min()), op=MPI.MIN)
-                        + comm.allreduce(float(x[:, k].max()), op=MPI.MAX)) for k in range(2))
+    lo, hi = _bounds(msh)
+    return tuple(0.5 * (lo[:2] + hi[:2]))
 
 
 def collect_figures(tmp: str, data: dict, worker: FigureWorker | None) -> list[str]:

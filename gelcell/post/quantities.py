@@ -380,9 +380,8 @@ def gamma_profiles(fields: DeviceFields, interface: str = "Gamma1") -> dict[str,
     by Y on the vertical interfaces of the normal-flow device).  In 3D
     (model.md section 10) the profile is the interface's line at mid-height,
     its P2 nodes at z = H/2 (the symmetry plane, the top of the computed half
-    height; a geometry file without ``chip_height``: the interface's highest
-    z), with the columns Z, v_fz and u_sz besides; v_fz = u_sz = 0 there by
-    symmetry.
+    height; a geometry file without ``chip_height``: :func:`_mid_height`), with
+    the columns Z, v_fz and u_sz besides; v_fz = u_sz = 0 there by symmetry.
     """
     tag = int(fields.layout.fluid_interfaces[interface])
     d = fields.params.displacement_scale
@@ -402,10 +401,16 @@ def gamma_profiles(fields: DeviceFields, interface: str = "Gamma1") -> dict[str,
 
 
 def _mid_height(fields: DeviceFields, points: np.ndarray) -> np.ndarray:
-    """Mask of the (replicated) interface nodes ``points`` on the plane z = H/2 (model.md section 10)."""
+    """Mask of the (replicated) interface nodes ``points`` on the plane z = H/2 (model.md section 10).
+
+    A geometry file without chip_height: the top of a half-height mesh (with the SYMMETRY_MID plane), else
+    the middle of the interface's z extent.
+    """
+    from gelcell.geometry import Tag
     H = fields.params.geometry.chip_height
     z = points[:, 2]
-    z_mid = 0.5 * H if H is not None else z.max()
+    half = fields.comm.allreduce(bool(np.any(fields.gel_tags.values == int(Tag.SYMMETRY_MID))), op=MPI.LOR)
+    z_mid = 0.5 * H if H is not None else (z.max() if half else 0.5 * (z.min() + z.max()))
     mask = np.abs(z - z_mid) <= 1e-8 * (1.0 + abs(z_mid))
     if not mask.any():
         raise ValueError(f"no interface node at mid-height z = {z_mid:g} (the interface spans z in "
