@@ -256,7 +256,7 @@ def test_sections_reproduce_a_linear_field(shear):
     if COMM.rank != 0:
         return
     assert abs(plane.offset - 0.5 * HEIGHT) < 1e-8         # moved inside the mesh's bounding box
-    for (x, tri, values), z in ((exact, 0.5 * HEIGHT), (grid, plane.offset)):
+    for (x, _, values), z in ((exact, 0.5 * HEIGHT), (grid, plane.offset)):
         assert np.abs(values - (x[:, 0] + 2 * x[:, 1] + 3 * z)).max() < 1e-12
     area = _bowl_area(g) - math.pi * (0.5 * g.cell_diameter) ** 2
     perimeter = 2 * g.radius * g.half_angle + 2 * g.radius * math.sin(g.half_angle) + math.pi * g.cell_diameter
