@@ -7,7 +7,7 @@ import numpy as np
 from mpi4py import MPI
 
 import ufl
-from dolfinx import fem, la
+from dolfinx import fem, geometry, la
 
 from femtools import continuum, jitcache
 
@@ -17,7 +17,8 @@ jitcache.install()
 #: the names ufl gives a (continuous) Lagrange family; a VectorElement reports its sub-element's
 LAGRANGE_FAMILIES = ("Lagrange", "P", "CG", "Q")
 
-__all__ = ["LAGRANGE_FAMILIES", "integrate", "gather_owned_rows", "owned_values", "global_max", "interpolate",
+__all__ = ["LAGRANGE_FAMILIES", "integrate", "gather_owned_rows", "owned_values", "global_max", "values_at_points",
+           "interpolate",
            "set_function", "NodalAverage", "von_mises", "green_lagrange", "quadrature_measure"]
 
 
@@ -54,6 +55,32 @@ def global_max(values: np.ndarray, comm: MPI.Comm) -> float:
     """Maximum of a local array over all ranks (``-inf`` if empty everywhere)."""
     local = float(np.max(values)) if np.size(values) else -np.inf
     return comm.allreduce(local, op=MPI.MAX)
+
+
+def values_at_points(u: fem.Function, points: np.ndarray) -> np.ndarray:
+    """Values of ``u`` at ``points`` (n x gdim, the same small set on every rank: probes, sections).
+
+    Each point is evaluated by the lowest rank one of whose owned cells contains it, and the
+    values summed over ranks, so every rank returns the same (n, value size) array; NaN where
+    no cell contains the point.
+    """
+    msh, comm = u.function_space.mesh, u.function_space.mesh.comm
+    x = np.zeros((len(points), 3))
+    x[:, : np.shape(points)[1]] = points
+    tdim = msh.topology.dim
+    owned = np.arange(msh.topology.index_map(tdim).size_local, dtype=np.int32)
+    tree = geometry.BoundingBoxTree(msh, tdim, owned)
+    colliding = geometry.compute_colliding_cells(msh, geometry.compute_collisions(tree, x), x)
+    cells = np.array([c[0] if len(c) else -1 for c in (colliding.links(i) for i in range(len(x)))], dtype=np.int32)
+    size = int(np.prod(u.ufl_shape))
+    owner = comm.allreduce(np.where(cells >= 0, comm.rank, comm.size), op=MPI.MIN)
+    mine = (owner == comm.rank) & (cells >= 0)
+    values = np.zeros((len(x), size))
+    if mine.any():
+        values[mine] = np.reshape(u.eval(x[mine], cells[mine]), (-1, size))
+    values = comm.allreduce(values, op=MPI.SUM)
+    values[owner == comm.size] = np.nan
+    return values
 
 
 def set_function(g: fem.Function, value, what: str) -> fem.Function:

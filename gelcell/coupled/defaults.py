@@ -72,16 +72,19 @@ def default_robin_coefficient(params: CaseParameters) -> float:
 
 
 def default_gamma2_coefficient(params: CaseParameters, diameter: float | None = None) -> float:
-    """kappa = 2 (d/s) phi_s0 / r_c: the drained network's stiffness seen from the cell's surface.
+    """kappa = c (d/s) phi_s0 / r_c: the drained network's stiffness seen from the cell's surface.
 
     For a circular hole of radius r_c in an elastic plane of shear modulus
-    mu_m, a radial surface displacement u_r needs the traction 2 mu_m u_r / r_c;
-    the drained network has mu_m = phi_s0 mu_s.  A Robin coefficient equal to
-    the Neumann side's stiffness makes the Robin-Neumann iteration contract
-    whatever the cell's stiffness (docs/partitioning.md).
+    mu_m, a radial surface displacement u_r needs the traction 2 mu_m u_r / r_c
+    (c = 2); for a spherical cavity in an elastic space (a 3D device's cell)
+    4 mu_m u_r / r_c (c = 4, u_r ~ 1/r^2).  The drained network has
+    mu_m = phi_s0 mu_s.  A Robin coefficient equal to the Neumann side's
+    stiffness makes the Robin-Neumann iteration contract whatever the cell's
+    stiffness (docs/partitioning.md).
     """
     radius = 0.5 * (params.geometry.min_cell_diameter if diameter is None else diameter)
-    return float(2.0 * params.displacement_scale / params.stress_scale * params.physics.phi_s0 / radius)
+    c = 2.0 if getattr(params.geometry, "chip_height", None) is None else 4.0
+    return float(c * params.displacement_scale / params.stress_scale * params.physics.phi_s0 / radius)
 
 
 def gamma2_stiffness_ratio(params: CaseParameters) -> float:

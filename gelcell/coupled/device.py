@@ -89,6 +89,8 @@ class Device:
         self.result: cp.CouplingResult | None = None
         #: where the last solve's linearized prior came from: "computed", "disk cache", "reused" or None
         self.prior_source: str | None = None
+        #: why the default went without its linearized prior (None: it did not)
+        self.prior_declined: str | None = None
 
     def _set_coefficients(self, robin_coefficient: float | None, gamma2: str) -> None:
         """The Robin coefficients on Gamma1/3 (alpha_n, alpha_t) and the split on Gamma2 with its kappa."""
@@ -253,8 +255,11 @@ class Device:
         """Build ``self.scheme`` under the default prior where it pays, else ``config``; return the one used."""
         chosen = self._default_prior(config)
         self.scheme = cp.build_scheme(chosen, self.participants, self.data, comm=self.comm)
+        self.prior_declined = None
         if chosen is not config and not self._prior_pays(self.scheme.layout.size):
             chosen = config                             # the plain secant model
+            self.prior_declined = (f"{self.scheme.layout.size} interface unknowns; the default's dense "
+                                   f"linearized prior pays up to {AUTO_PRIOR_MAX_UNKNOWNS}")
             self.scheme = cp.build_scheme(chosen, self.participants, self.data, comm=self.comm)
         self._choose_solve_paths(chosen)
         return chosen

@@ -19,10 +19,11 @@ _ROWS = [
     ("max |v_f| in the gel", ("gel", "max_interstitial_speed"), "velocity"),
     ("max |u_s| in the gel", ("gel", "max_network_displacement"), "length"),
     ("max von Mises of sigma_s", ("gel", "max_network_von_mises"), "stress"),
-    ("volume change below Gamma1", ("gel", "volume_change_below_gamma1"), "area"),
+    ("volume change below Gamma1", ("gel", "volume_change_below_gamma1"), "measure"),
     ("  share due to the cell", ("gel", "volume_change_share_of_cell"), None),
     ("cell centroid displacement x", ("cell", "centroid_displacement", 0), "length"),
     ("cell centroid displacement y", ("cell", "centroid_displacement", 1), "length"),
+    ("cell centroid displacement z", ("cell", "centroid_displacement", 2), "length"),       # 3D
     ("max |u_c| in the cell", ("cell", "max_displacement"), "length"),
     ("cell von Mises strain min", ("cell", "von_mises_strain", 0), None),
     ("cell von Mises strain max", ("cell", "von_mises_strain", 1), None),
@@ -35,12 +36,14 @@ _ROWS = [
 ]
 
 
-_UNITS = {"velocity": "µm/s", "length": "µm", "stress": "mPa", "area": "µm²", None: "-"}
+_UNITS = {"velocity": "µm/s", "length": "µm", "stress": "mPa", None: "-"}
+#: the unit of a volume change: an area in 2D, a volume in 3D
+_MEASURE_UNITS = {2: "µm²", 3: "µm³"}
 
 
 def _get(d, path):
     for k in path:
-        if d is None:
+        if d is None or (isinstance(k, int) and k >= len(d)):
             return None
         d = d[k]
     return d
@@ -90,13 +93,14 @@ def report(summary: dict, params: CaseParameters) -> dict:
 def format_summary(summary: dict) -> str:
     """A short table: quantity, paper's dimensionless value, SI value."""
     lines = [f"{'quantity':32s} {'dimensionless':>14s} {'SI':>14s}  unit", "-" * 70]
+    units = {**_UNITS, "measure": _MEASURE_UNITS[(summary.get("geometry") or {}).get("dimension", 2)]}
     for label, path, kind in _ROWS:
         key, rest = f"{path[0]}.{path[1]}", path[2:]
         v = _get(summary.get(key), rest) if key in summary else None
         if v is None:
             continue
         si = _get(summary["si"][key], rest)
-        lines.append(f"{label:32s} {v:14.6e} {si:14.6e}  {_UNITS[kind]}")
+        lines.append(f"{label:32s} {v:14.6e} {si:14.6e}  {units[kind]}")
     cells = summary.get("cells") or []
     if len(cells) > 1:
         lines.append("per cell (dimensionless): centroid displacement x, y; von Mises strain max; stress max")
@@ -107,7 +111,8 @@ def format_summary(summary: dict) -> str:
     c = summary.get("coupling")
     if c and "iterations" in c:
         prior = (f" (linearized prior: {c['prior_source']})" if c.get("jacobian_prior") == "linearized"
-                 and c.get("prior_source") else "")
+                 and c.get("prior_source") else f" (secant model alone: {c['prior_reason']})"
+                 if c.get("prior_reason") else "")
         lines.append(f"coupling: {c['scheme']} / {c['acceleration']}{prior}, {c['iterations']} iterations, "
                      f"converged={c['converged']}")
     solver = summary.get("solver")

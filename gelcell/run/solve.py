@@ -106,7 +106,8 @@ def _coupling_summary(device: Device, config: dict, result: cp.CouplingResult, r
         "robin_coefficient": device.alpha_n, "gamma2": device.gamma2,
         "gamma2_coefficient": device.kappa if device.gamma2 == "robin" else None,
         "jacobian_prior": "none" if device.linearized_prior is None else "linearized",
-        "prior_source": device.prior_source,
+        "prior_source": device.prior_source, "prior_reason": device.prior_declined,
+        "interface_unknowns": device.scheme.layout.size,
         "iterations": result.iterations, "converged": result.converged,
         "reason": result.reason, "reused": reused, "residual_history": result.residual_history,
         "relaxation": result.relaxation}
@@ -161,7 +162,8 @@ def solve_monolithic(params: CaseParameters, comm: MPI.Comm = MPI.COMM_WORLD, ch
                              "dofs": solver.num_dofs}
     summary["coupling"] = None
     summary["solver"] = asked
-    summary["mesh"] = {"whole": {"cells": msh.topology.index_map(2).size_global, "dofs": solver.num_dofs},
+    whole = msh.topology.index_map(msh.topology.dim).size_global
+    summary["mesh"] = {"whole": {"cells": whole, "dofs": solver.num_dofs},
                        "fluid": {"cells": _cells(fields.fluid_velocity)},
                        "gel": {"cells": _cells(fields.displacement)}}
     if fields.cell_displacement is not None:
