@@ -6,6 +6,10 @@
 imported matplotlib while the run was solving.  Coordinates are in units of
 L0; field values in SI-derived units (µm/s, µm, mPa) so that a bioengineer
 reads them directly.
+
+3D runs (``data["section"]`` set): the 2D figures show the mid-height plane
+(their titles say so) and two more the vertical plane through the cell
+(``data["vertical"]``, see ``gelcell.output.figures``).
 """
 
 from __future__ import annotations
@@ -36,14 +40,19 @@ def _triangulation(data):
     return mtri.Triangulation(X[:, 0], X[:, 1], T)
 
 
-def _field_panel(ax, data, values, label, cmap="viridis"):
+def _field_panel(ax, data, values, label, cmap="viridis", axes=("x", "y")):
     tri = _triangulation(data)
     m = gouraud(ax, tri, values, cmap)
     plt.colorbar(m, ax=ax, label=label, shrink=0.8)
     ax.set_aspect("equal")
-    ax.set_xlabel("x / L0")
-    ax.set_ylabel("y / L0")
+    ax.set_xlabel(f"{axes[0]} / L0")
+    ax.set_ylabel(f"{axes[1]} / L0")
     return tri
+
+
+def _in_section(title: str, data: dict) -> str:
+    """A figure's title, with the section it shows in 3D."""
+    return title if not data.get("section") else f"{title}\n({data['section']})"
 
 
 def gouraud(ax, tri, values, cmap):
@@ -124,10 +133,11 @@ def _save(fig, directory, name) -> list[str]:
 
 
 def profiles_figure(path: str, profiles: dict, V: float, L: float, label: str, overlay: dict | None = None,
-                    labels: tuple[str, str] = ("with cell", "without cell")) -> None:
+                    labels: tuple[str, str] = ("with cell", "without cell"), where: str = "") -> None:
     """The four Gamma1 profiles v_fx, v_fy, u_sx, u_sy against the undeformed coordinate.
 
-    ``V``, ``L``: µm/s and µm per unit of velocity and length; ``label``: the device's name.
+    ``V``, ``L``: µm/s and µm per unit of velocity and length; ``label``: the device's name;
+    ``where``: appended to the title (3D: " at mid-height", where v_fz = u_sz = 0 by symmetry).
     """
     along = "X" if np.ptp(profiles["X"]) >= np.ptp(profiles["Y"]) else "Y"
     fig, axes = plt.subplots(2, 2, figsize=(10, 6), sharex=True)
@@ -143,7 +153,7 @@ def profiles_figure(path: str, profiles: dict, V: float, L: float, label: str, o
         ax.set_xlabel(f"{along} / L0 along Γ1")
     if overlay is not None:
         axes[0, 0].legend()
-    fig.suptitle(f"{label}: profiles along Γ1")
+    fig.suptitle(f"{label}: profiles along Γ1{where}")
     write_png(fig, path)
     plt.close(fig)
 
@@ -170,7 +180,7 @@ def _velocity_figure(directory: str, data: dict) -> list[str]:
     tri = _field_panel(ax, speed, data["V"] * np.linalg.norm(vals, axis=1), "|v_f| [µm/s]")
     _streamlines(ax, tri, vals[:, 0], vals[:, 1])
     _mark_cells(ax, data["cells"])
-    ax.set_title("interstitial velocity in the gel")
+    ax.set_title(_in_section("interstitial velocity in the gel", data))
     return _save(fig, directory, "gel_velocity.png")
 
 
@@ -178,7 +188,7 @@ def _pressure_figure(directory: str, data: dict) -> list[str]:
     pressure = data["pressure"]
     fig, ax = plt.subplots(figsize=_panel_size(data))
     _field_panel(ax, pressure, data["S"] * pressure[2], "p [mPa]", cmap="coolwarm")
-    ax.set_title("pore pressure in the gel")
+    ax.set_title(_in_section("pore pressure in the gel", data))
     return _save(fig, directory, "gel_pressure.png")
 
 
@@ -186,7 +196,7 @@ def _displacement_figure(directory: str, data: dict) -> list[str]:
     disp, vm, size = data["disp"], data["vm"], _panel_size(data)
     fig, axes = plt.subplots(2, 1, figsize=(size[0], 2 * size[1]))
     _field_panel(axes[0], disp, data["L"] * np.linalg.norm(disp[2], axis=1), "|u_s| [µm]")
-    axes[0].set_title("network displacement")
+    axes[0].set_title(_in_section("network displacement", data))
     _field_panel(axes[1], vm, data["S"] * vm[2], "von Mises of σ_s [mPa]", cmap="magma")
     for ax in axes:
         _mark_cells(ax, data["cells"])
@@ -196,7 +206,7 @@ def _displacement_figure(directory: str, data: dict) -> list[str]:
 
 def _profiles_task(directory: str, data: dict) -> list[str]:
     profiles_figure(os.path.join(directory, "gamma1_profiles.png"), data["profiles"], data["V"], data["L"],
-                    data["label"], data["overlay"])
+                    data["label"], data["overlay"], where=" at mid-height" if data.get("section") else "")
     return ["gamma1_profiles.png"]
 
 
@@ -208,7 +218,8 @@ def _cell_displacement_figure(directory: str, data: dict) -> list[str]:
     for spec, cs in zip(specs, data["cells_summary"]):
         centre, r = np.asarray(spec.centre), 0.5 * spec.diameter
         mine = np.linalg.norm(X - centre, axis=1) <= r * (1 + 1e-6)
-        rel = U[mine] - np.asarray(cs["centroid_displacement"])
+        # (3D: the mid-height plane's vertices, the in-plane components)
+        rel = U[mine][:, :2] - np.asarray(cs["centroid_displacement"])[:2]
         ax.quiver(X[mine, 0], X[mine, 1], data["L"] * rel[:, 0], data["L"] * rel[:, 1], angles="xy")
         ax.plot(centre[0] + r * np.cos(t), centre[1] + r * np.sin(t), "k-", lw=0.5)
         if len(specs) > 1:
@@ -216,7 +227,7 @@ def _cell_displacement_figure(directory: str, data: dict) -> list[str]:
     ax.set_aspect("equal")
     ax.set_xlabel("x / L0")
     ax.set_ylabel("y / L0")
-    ax.set_title("cell displacement relative to its centroid [µm, arrows not to scale]")
+    ax.set_title(_in_section("cell displacement relative to its centroid [µm, arrows not to scale]", data))
     return _save(fig, directory, "cell_displacement.png")
 
 
@@ -238,8 +249,8 @@ def _traction_parts_figure(directory: str, data: dict, spec) -> list[str]:
             ax.plot(c2[0] + r2 * np.cos(t), c2[1] + r2 * np.sin(t), "w-", lw=0.8)
         ax.set_title({"pressure": "pressure  −p I", "brinkman": "Brinkman  φ_f σ_f",
                       "network": "network  φ_s σ_s", "total": "total"}[key])
-    fig.suptitle("stress parts in the gel around the cell (von Mises)" if len(specs) == 1 else
-                 f"stress parts in the gel around {spec.name} (von Mises)")
+    fig.suptitle(_in_section("stress parts in the gel around the cell (von Mises)" if len(specs) == 1 else
+                             f"stress parts in the gel around {spec.name} (von Mises)", data))
     fig.subplots_adjust(wspace=0.5, hspace=0.35)
     return _save(fig, directory, "cell_traction_parts.png" if len(specs) == 1 else f"{spec.name}_traction_parts.png")
 
@@ -255,7 +266,54 @@ def device_figure_tasks(directory: str, data: dict) -> list[tuple[float, typing.
     if data["cell"] is not None:
         tasks.append((0.12, functools.partial(_cell_displacement_figure, directory, data)))
         tasks += [(0.5, functools.partial(_traction_parts_figure, directory, data, spec)) for spec in data["cells"]]
+    if data.get("vertical") is not None:
+        tasks += [(0.3, functools.partial(_vertical_velocity_figure, directory, data)),
+                  (0.3, functools.partial(_vertical_displacement_figure, directory, data))]
     return tasks
+
+
+def _vertical_size(section) -> tuple[float, float]:
+    """A panel as wide as the 2D ones, as high as the section's aspect asks (plus room for the labels)."""
+    X = section[0]
+    aspect = np.ptp(X[:, 1]) / max(np.ptp(X[:, 0]), 1e-300)
+    return 11, 1.2 + 8 * aspect
+
+
+def _vertical_limits(ax, section) -> None:
+    """The section's own extent (the cells' circles reach beyond the computed half height)."""
+    X = section[0]
+    ax.set_xlim(X[:, 0].min(), X[:, 0].max())
+    ax.set_ylim(X[:, 1].min(), X[:, 1].max())
+
+
+def _vertical_velocity_figure(directory: str, data: dict) -> list[str]:
+    """|v_f| on the vertical plane y = y_cell, with the streamlines of its in-plane part (v_f,x, v_f,z)."""
+    vert = data["vertical"]
+    speed, (i, k) = vert["speed"], vert["components"]
+    fig, ax = plt.subplots(figsize=_vertical_size(speed))
+    vals = speed[2]
+    tri = _field_panel(ax, speed, data["V"] * np.linalg.norm(vals, axis=1), "|v_f| [µm/s]", axes=("x", "z"))
+    _streamlines(ax, tri, vals[:, i], vals[:, k])
+    _mark_cells(ax, vert["cells"])
+    _vertical_limits(ax, speed)
+    ax.set_title(f"interstitial velocity in the gel (vertical plane y = {vert['y']:.4g} through the cell)")
+    return _save(fig, directory, "gel_velocity_vertical.png")
+
+
+def _vertical_displacement_figure(directory: str, data: dict) -> list[str]:
+    """|u_s| and the network's von Mises stress on the vertical plane y = y_cell."""
+    vert = data["vertical"]
+    disp, vm = vert["disp"], vert["vm"]
+    w, h = _vertical_size(disp)
+    fig, axes = plt.subplots(2, 1, figsize=(w, 2 * h))
+    _field_panel(axes[0], disp, data["L"] * np.linalg.norm(disp[2], axis=1), "|u_s| [µm]", axes=("x", "z"))
+    _field_panel(axes[1], vm, data["S"] * vm[2], "von Mises of σ_s [mPa]", cmap="magma", axes=("x", "z"))
+    for ax, section in zip(axes, (disp, vm)):
+        _mark_cells(ax, vert["cells"])
+        _vertical_limits(ax, section)
+    axes[0].set_title(f"network displacement (vertical plane y = {vert['y']:.4g} through the cell)")
+    axes[1].set_title("von Mises stress of the network")
+    return _save(fig, directory, "gel_displacement_von_mises_vertical.png")
 
 
 def render_device_figures(directory: str, data: dict, processes: int = 1) -> list[str]:
@@ -313,8 +371,8 @@ def draw_transient_figures(directory: str, rows: list[dict], summary: dict, para
 
 
 def _trajectory_figure(rows: list[dict], tr: dict, params):
-    """The centroid's x and y against t (y on its own axis, steady values and t50/t90/t99 marked);
-    without a cell, max |u_s|."""
+    """The centroid's x and y (3D: and z, if it moves) against t (y, z on their own axis, steady values and
+    t50/t90/t99 marked); without a cell, max |u_s|."""
     seconds = params.to_si(np.array([r["t"] for r in rows]), "time")
     L = params.to_report(1.0, "length")
     fig, ax = plt.subplots(figsize=(8, 4.5))
@@ -348,12 +406,18 @@ def _draw_centroids(ax, rows: list[dict], seconds: np.ndarray, L: float, params)
             "x of the cell that moves most")
     ax.axhline(x[-1], color="C0", ls=":", lw=0.8, label=f"final x {x[-1]:.4g} µm")
     ax.set_ylabel("centroid displacement x [µm]", color="C0")
-    if np.any(y != 0):
-        # the much smaller y motion on its own axis (zero by symmetry in the normal-flow device)
+    # 3D: z (zero by symmetry for a cell at mid-height, then not drawn)
+    z = L * np.array([r.get("centroid_z", 0.0) for r in rows])
+    if np.any(y != 0) or np.any(z != 0):
+        # the much smaller y (and z) motion on its own axis (y zero by symmetry in the normal-flow device)
         ay = ax.twinx()
         ay.plot(seconds, y, "C3-", label="centroid y")
         ay.axhline(y[-1], color="C3", ls=":", lw=0.8)
-        ay.set_ylabel("centroid displacement y [µm]", color="C3")
+        if np.any(z != 0):
+            ay.plot(seconds, z, "C2-", label="centroid z")
+            ay.axhline(z[-1], color="C2", ls=":", lw=0.8)
+        ay.set_ylabel("centroid displacement y [µm]" if not np.any(z != 0) else "centroid displacement y, z [µm]",
+                      color="C3")
     ax.set_title(f"{params.label}: the cell's centroid from rest" if n_cells <= 1 else
                  f"{params.label}: the cells' centroids from rest")
 

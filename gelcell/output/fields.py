@@ -51,7 +51,7 @@ class DerivedFields:
         Q2 = fem.FunctionSpace(gm, ("Lagrange", 2))
         phi_s = gel_forms.solid_fraction(u, c)
         scalars = {"von_mises_network": von_mises(gel_forms.network_stress(u, c))}
-        parts = {"pressure": -pp * ufl.Identity(2), "brinkman": (1 - phi_s) * fields.fluid_stress(c),
+        parts = {"pressure": -pp * ufl.Identity(gm.geometry.dim), "brinkman": (1 - phi_s) * fields.fluid_stress(c),
                  "network": phi_s * gel_forms.network_stress(u, c),
                  "total": fields.gel_forms.total_stress(v_f, u, pp, c)}
         scalars.update({f"von_mises_{k}_part": von_mises(e) for k, e in parts.items()})

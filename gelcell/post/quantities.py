@@ -377,17 +377,45 @@ def gamma_profiles(fields: DeviceFields, interface: str = "Gamma1") -> dict[str,
     """v_f and u_s along a fluid-gel interface against the undeformed coordinates (paper units).
 
     Rows are sorted along the interface (by X on Gamma1 of the shear device,
-    by Y on the vertical interfaces of the normal-flow device).
+    by Y on the vertical interfaces of the normal-flow device).  In 3D
+    (model.md section 10) the profile is the interface's line at mid-height,
+    its P2 nodes at z = H/2 (the symmetry plane, the top of the computed half
+    height; a geometry file without ``chip_height``: :func:`_mid_height`), with
+    the columns Z, v_fz and u_sz besides; v_fz = u_sz = 0 there by symmetry.
     """
     tag = int(fields.layout.fluid_interfaces[interface])
     d = fields.params.displacement_scale
     nodes = InterfaceNodes(fields.interstitial_velocity.function_space, fields.gel_tags, tag)
-    vf = nodes.from_function(fields.interstitial_velocity)
-    us = d * nodes.from_function(fields.displacement)
-    X, Y = nodes.points[:, 0], nodes.points[:, 1]
+    on_line = _mid_height(fields, nodes.points) if nodes.points.shape[1] == 3 else slice(None)
+    points = nodes.points[on_line]
+    vf = nodes.from_function(fields.interstitial_velocity)[on_line]
+    us = d * nodes.from_function(fields.displacement)[on_line]
+    X, Y = points[:, 0], points[:, 1]
     order = np.argsort(X if np.ptp(X) >= np.ptp(Y) else Y, kind="stable")
-    return {"X": X[order], "Y": Y[order], "v_fx": vf[order, 0], "v_fy": vf[order, 1],
-            "u_sx": us[order, 0], "u_sy": us[order, 1]}
+    if points.shape[1] == 2:
+        return {"X": X[order], "Y": Y[order], "v_fx": vf[order, 0], "v_fy": vf[order, 1],
+                "u_sx": us[order, 0], "u_sy": us[order, 1]}
+    return {"X": X[order], "Y": Y[order], "Z": points[order, 2],
+            "v_fx": vf[order, 0], "v_fy": vf[order, 1], "v_fz": vf[order, 2],
+            "u_sx": us[order, 0], "u_sy": us[order, 1], "u_sz": us[order, 2]}
+
+
+def _mid_height(fields: DeviceFields, points: np.ndarray) -> np.ndarray:
+    """Mask of the (replicated) interface nodes ``points`` on the plane z = H/2 (model.md section 10).
+
+    A geometry file without chip_height: the top of a half-height mesh (with the SYMMETRY_MID plane), else
+    the middle of the interface's z extent.
+    """
+    from gelcell.geometry import Tag
+    H = fields.params.geometry.chip_height
+    z = points[:, 2]
+    half = fields.comm.allreduce(bool(np.any(fields.gel_tags.values == int(Tag.SYMMETRY_MID))), op=MPI.LOR)
+    z_mid = 0.5 * H if H is not None else (z.max() if half else 0.5 * (z.min() + z.max()))
+    mask = np.abs(z - z_mid) <= 1e-8 * (1.0 + abs(z_mid))
+    if not mask.any():
+        raise ValueError(f"no interface node at mid-height z = {z_mid:g} (the interface spans z in "
+                         f"[{z.min():g}, {z.max():g}])")
+    return mask
 
 
 def flat_quantities(summary: dict) -> dict[str, float]:

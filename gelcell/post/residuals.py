@@ -16,13 +16,17 @@ exactly as the fluid solver recovers it (interface mass matrix, interface
 end nodes pinned).  Each condition of model.md section 3 on Gamma1/Gamma3
 (n out of the gel, tau its tangent, v_s = 0), tested with the P2 basis
 function phi_j of every interface node that is not also on a wall or a
-symmetry line, and multiplied through by phi_s where it would divide by it:
+symmetry line (in 3D: a wall, the floor or a symmetry plane), and multiplied
+through by phi_s where it would divide by it:
 
     I13   int (V - phi_f v_f).n phi_j
-    I14   G_j + t_j                                               (2 components)
+    I14   G_j + t_j                                               (d components)
     I15   int phi_s Ca (V - v_f).n phi_j - eta (int phi_s T.n phi_j - N_j.n)
     I16   int Ca (V - v_f).tau phi_j + beta t_j.tau
     I17   -int Ca phi_s^2 v_f.tau phi_j + beta N_j.tau
+
+In 3D (d = 3) the tangential conditions I16, I17 hold for both tangents
+tau_1, tau_2 of the (plane) interface, and each is the residual of the pair.
 
 Each residual vector's norm is divided by the norm of its largest term.
 These are the equations the discrete problem satisfies, so both the
@@ -131,7 +135,7 @@ class _TraceProjection:
 
 def _points_on(V, facet_tags, tags) -> np.ndarray:
     """Coordinates of the nodes of ``V`` on any facet with one of ``tags`` (all ranks)."""
-    out = [np.empty((0, 2))]
+    out = [np.empty((0, V.mesh.geometry.dim))]
     for t in tags:
         present = V.mesh.comm.allreduce(bool(np.any(facet_tags.values == t)), op=MPI.LOR)
         if present:
@@ -217,25 +221,37 @@ def _fluid_interface_residuals(fields: DeviceFields, name: str, tag: int) -> dic
     c, t_fluid, F_f_load, T_gel_load = r["c"], r["t_fluid"], r["F_load"], r["G_load"]
     V_on_gel, gel_nodes, proj, Vg = r["V_on_gel"], r["gel_nodes"], r["proj"], r["Vg"]
     free = proj.free
-    # the fluid's traction on the gel as the field the gel was given (ends pinned to 0)
-    T = fem.Function(Vg)
-    gel_nodes.to_function(np.column_stack([proj.of_nodal_load(-t_fluid[:, i]) for i in range(2)]), T)
+    gdim = gm.geometry.dim
+    # the fluid's traction on the gel as the field the gel was given: 2D with the ends pinned to 0 (every
+    # component); 3D as the fluid recovers it, a component pinned where another boundary fixes it
+    if gdim == 2:
+        T = fem.Function(Vg)
+        gel_nodes.to_function(np.column_stack([proj.of_nodal_load(-t_fluid[:, i]) for i in range(gdim)]), T)
+    else:
+        T = _recovered_traction(fields, tag, r)
     N_load = T_gel_load - F_f_load        # network partial traction, tested
-    n, tau = _interface_frame(proj)
-    nn, tt = fem.Constant(gm, n), fem.Constant(gm, tau)
+    n, taus = _interface_frame(proj)
+    nn = fem.Constant(gm, n)
+    tt = [fem.Constant(gm, tau) for tau in taus]
     visc = fem.Constant(gm, visc)
     phi_s = gel_forms.solid_fraction(u, c)
     tested = proj.tested
+
+    def tangential(term):
+        """``(N, d - 1)``: ``term(tau_k as a Constant, tau_k)`` for each tangent tau_k."""
+        return np.column_stack([term(t, tau) for t, tau in zip(tt, taus)])
     terms = {
         "I13": [tested(ufl.dot(V_on_gel - (1 - phi_s) * v_f, nn)), tested(ufl.dot(V_on_gel, nn))],
         "I14": [T_gel_load + t_fluid, t_fluid],
         "I15": [tested(phi_s * visc * ufl.dot(V_on_gel - v_f, nn))
                 - eta * (tested(phi_s * ufl.dot(T, nn)) - N_load @ n),
                 tested(phi_s * visc * ufl.dot(V_on_gel - v_f, nn)), eta * tested(phi_s * ufl.dot(T, nn))],
-        "I16": [tested(visc * ufl.dot(V_on_gel - v_f, tt)) + beta * (t_fluid @ tau),
-                tested(visc * ufl.dot(V_on_gel - v_f, tt)), beta * (t_fluid @ tau)],
-        "I17": [-tested(visc * phi_s**2 * ufl.dot(v_f, tt)) + beta * (N_load @ tau),
-                tested(visc * phi_s**2 * ufl.dot(v_f, tt)), beta * (N_load @ tau)],
+        "I16": [tangential(lambda t, tau: tested(visc * ufl.dot(V_on_gel - v_f, t)) + beta * (t_fluid @ tau)),
+                tangential(lambda t, tau: tested(visc * ufl.dot(V_on_gel - v_f, t))),
+                tangential(lambda t, tau: beta * (t_fluid @ tau))],
+        "I17": [tangential(lambda t, tau: -tested(visc * phi_s**2 * ufl.dot(v_f, t)) + beta * (N_load @ tau)),
+                tangential(lambda t, tau: tested(visc * phi_s**2 * ufl.dot(v_f, t))),
+                tangential(lambda t, tau: beta * (N_load @ tau))],
     }
     return _relative(terms, free)
 
@@ -252,23 +268,15 @@ def _finite_fluid_interface_residuals(fields: DeviceFields, name: str, tag: int)
     c, t_fluid, F_load, G_load = r["c"], r["t_fluid"], r["F_load"], r["G_load"]
     V_on_gel, gel_nodes, proj, Vg, Vfl, Q = (r[k] for k in ("V_on_gel", "gel_nodes", "proj", "Vg", "Vfl", "Q"))
     free = proj.free
-    # the fluid's traction on the gel as the fluid recovers it: a component is pinned (zero) only at the
-    # nodes where another boundary fixes that velocity component (fluid.solver)
-    b = fields.layout.boundaries
-    T = fem.Function(Vg)
-    columns = []
-    for k in range(2):
-        fixing = [t for tags, comps in b.fluid_dirichlet_tags() if k in comps for t in tags]
-        proj_k = _TraceProjection(Q, fields.gel_tags, tag, _points_on(Vfl, fields.fluid_tags, fixing))
-        columns.append(proj_k.of_nodal_load(-t_fluid[:, k]))
-    gel_nodes.to_function(np.column_stack(columns), T)
+    gdim = gm.geometry.dim
+    T = _recovered_traction(fields, tag, r)
     j, n = surface_stretch(u, fem.Constant(gm, d), ufl.FacetNormal(gm))
     phi_s = gel_lagrangian.solid_fraction(u, c)
     tangential = lambda a: a - ufl.dot(a, n) * n  # noqa: E731
 
     def tested(vector):
-        """int vector_k phi_j for every interface node j, (N, 2)."""
-        return np.column_stack([proj.tested(vector[k]) for k in range(2)])
+        """int vector_k phi_j for every interface node j, (N, d)."""
+        return np.column_stack([proj.tested(vector[k]) for k in range(gdim)])
     # numbers enter the forms as Constants: no parameter value compiles anything
     visc, eta, beta = (fem.Constant(gm, float(v)) for v in (visc, eta, beta))
     alpha_n, alpha_t = default_robin_coefficient(p), visc / beta
@@ -288,16 +296,44 @@ def _finite_fluid_interface_residuals(fields: DeviceFields, name: str, tag: int)
     return _relative(terms, free)
 
 
-def _interface_frame(proj) -> tuple[np.ndarray, np.ndarray]:
-    """Unit normal (out of the gel) and tangent of a straight interface."""
+def _recovered_traction(fields: DeviceFields, tag: int, r: dict) -> fem.Function:
+    """The fluid's traction on the gel as the fluid recovers it (fluid.solver), on the gel's space.
+
+    A component is pinned (zero) only at the nodes where another boundary
+    fixes that velocity component; ``r``: :func:`_interface_reactions`.
+    """
+    b = fields.layout.boundaries
+    T = fem.Function(r["Vg"])
+    columns = []
+    for k in range(r["Vg"].mesh.geometry.dim):
+        fixing = [t for tags, comps in b.fluid_dirichlet_tags() if k in comps for t in tags]
+        proj_k = _TraceProjection(r["Q"], fields.gel_tags, tag, _points_on(r["Vfl"], fields.fluid_tags, fixing))
+        columns.append(proj_k.of_nodal_load(-r["t_fluid"][:, k]))
+    r["gel_nodes"].to_function(np.column_stack(columns), T)
+    return T
+
+
+def _interface_frame(proj) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Unit normal (out of the gel) and tangents of a straight (2D) or plane (3D) interface.
+
+    2D: the tangent (-n_y, n_x); 3D: two orthonormal tangents, the first the
+    projection (I - n n^T) of the axis least aligned with n.  The tangential
+    conditions are tested with both, so which pair it is does not matter.
+    """
     ds = proj.ds
     n_ufl = ufl.FacetNormal(proj.Q.mesh)
+    gdim = proj.Q.mesh.geometry.dim
     length = proj.comm.allreduce(fem.assemble_scalar(fem.form(1.0 * ds)), op=MPI.SUM)
     n = np.array([proj.comm.allreduce(fem.assemble_scalar(fem.form(n_ufl[i] * ds)), op=MPI.SUM)
-                  for i in range(2)]) / length
+                  for i in range(gdim)]) / length
     if abs(np.linalg.norm(n) - 1.0) > 1e-8:
-        raise NotImplementedError("the interface-condition check assumes a straight interface")
-    return n, np.array([-n[1], n[0]])
+        raise NotImplementedError("the interface-condition check assumes a straight (plane) interface")
+    if gdim == 2:
+        return n, [np.array([-n[1], n[0]])]
+    axis = np.eye(3)[int(np.argmin(np.abs(n)))]
+    t1 = axis - (axis @ n) * n
+    t1 /= np.linalg.norm(t1)
+    return n, [t1, np.cross(n, t1)]
 
 
 def _cell_interface_residuals(fields: DeviceFields, spec) -> dict[str, float]:
