@@ -32,7 +32,7 @@ from femtools.errors import NewtonError, SingularSystemError
 __all__ = ["DirectSolver", "BlockTriangularSolver", "is_symmetric", "LinearSolver", "NewtonSolver", "SolverStats",
            "direct_solver", "assemble_residual_vector", "jacobian_at_rest", "SingularSystemError",
            "NewtonError", "schur_complement", "gather_submatrix", "gather_entries",
-           "condensed_matrix", "distributed_schur_complement"]
+           "condensed_matrix", "distributed_schur_complement", "split_by_integral_type"]
 
 _counter = itertools.count()
 _ICNTL = re.compile(r"^mat_mumps_icntl_(\d+)$")
@@ -334,10 +334,19 @@ class BlockTriangularSolver:
         out[i1] = x1.array_r
 
 
+def _parts(form) -> tuple:
+    """A compiled form, or the compiled parts of one form (:func:`split_by_integral_type`), as a tuple."""
+    return tuple(form) if isinstance(form, (tuple, list)) else (form,)
+
+
 def _assemble_into(A: PETSc.Mat, form, bcs) -> None:
-    """Assemble ``form`` into ``A``, Dirichlet rows of ``bcs`` set to the identity."""
+    """Assemble ``form`` (a compiled form or a tuple of its parts) into ``A``, Dirichlet rows of
+    ``bcs`` set to the identity."""
     A.zeroEntries()
-    fem_petsc.assemble_matrix(A, form, bcs=bcs)
+    for k, part in enumerate(_parts(form)):
+        if k:
+            A.assemble(PETSc.Mat.AssemblyType.FLUSH)    # the previous part set the diagonal by insertion
+        fem_petsc.assemble_matrix(A, part, bcs=bcs)
     A.assemble()
 
 
@@ -580,7 +589,8 @@ class NewtonSolver:
         self.stats = SolverStats()
         self.history: list[float] = []
         comm = u.function_space.mesh.comm
-        pattern = self.J_reference if _pattern_covers(J_reference, J) else self.J
+        # (the first part of J: its cell integrals, which hold the pattern of its other part)
+        pattern = self.J_reference if _pattern_covers(J_reference, J) else self.J[0]
         self.A = fem_petsc.create_matrix(pattern)
         self.b = fem_petsc.create_vector(self.F)
         self._bc_check = self.A.createVecRight()
@@ -641,12 +651,19 @@ class NewtonSolver:
         return self.u.function_space.mesh.comm.allreduce(self._active.getLocalSize(), op=MPI.SUM)
 
     @property
-    def J(self) -> fem.FormMetaClass:
+    def J(self) -> tuple:
         """The exact Jacobian, compiled when first needed: with a ``J_reference`` a solve at
-        small loads never needs it, and a finite-strain 3D Jacobian takes tens of seconds to compile."""
+        small loads never needs it, and a finite-strain 3D Jacobian takes tens of seconds to compile.
+        A tuple of compiled forms whose sum it is: its cell integrals and its boundary terms
+        (:func:`split_by_integral_type`), compiled apart so that the cell kernel is shared."""
         if self._J is None:
-            self._J = fem.form(self._J_ufl, form_compiler_params=self._fcp)
+            self._J = tuple(fem.form(part, form_compiler_params=self._fcp)
+                            for part in split_by_integral_type(self._J_ufl))
         return self._J
+
+    def _step_jacobian(self) -> tuple:
+        """The compiled parts of the Jacobian the next step solves with (held, or to be assembled)."""
+        return _parts(self.J if self._exact else self.J_reference)
 
     def invalidate_jacobian(self) -> None:
         """Factorise again at the next iteration (e.g. coefficients of J changed)."""
@@ -808,7 +825,10 @@ class NewtonSolver:
         if self.F_data is not None:
             fem_petsc.assemble_vector(self.b, self.F_data)
         if not self._dirichlet_satisfied():
-            fem_petsc.apply_lifting(self.b, [self.J], bcs=[self.bcs], x0=[self.u.vector], scale=-1.0)
+            # lifted with the Jacobian the next step solves with: the step is then that of the kept
+            # matrix with its Dirichlet columns (exact J: Newton's step), and small loads compile no J
+            for part in self._step_jacobian():
+                fem_petsc.apply_lifting(self.b, [part], bcs=[self.bcs], x0=[self.u.vector], scale=-1.0)
         self.b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         self.b.axpy(1.0, state)
         if self._load_dofs.size:
@@ -1033,6 +1053,23 @@ def _pattern_covers(reference: ufl.Form | None, J: ufl.Form) -> bool:
     mine, theirs = kinds(reference), kinds(J)
     return (("cell", "everywhere") in mine and reference.arguments() == J.arguments()
             and all(t != "interior_facet" or (t, s) in mine for t, s in theirs))
+
+
+def split_by_integral_type(J: ufl.Form) -> list[ufl.Form]:
+    """``J`` as two forms, its cell integrals and its other integrals, derivatives expanded; ``[J]``
+    if either is empty or the cell integrals' pattern does not hold the others' (:func:`_pattern_covers`).
+
+    The form compiler caches a form by its signature: the cell part of a problem's Jacobian is then
+    compiled once for every set of boundary terms (interfaces, loads, their facet tags), and a
+    manufactured solution's source terms, whose derivative is zero, drop out of it.  A 3D
+    finite-strain cell kernel is the costly one (docs/performance.md).
+    """
+    J = ufl.algorithms.expand_derivatives(J)
+    cells = [itg for itg in J.integrals() if itg.integral_type() == "cell"]
+    others = [itg for itg in J.integrals() if itg.integral_type() != "cell"]
+    if not cells or not others or not _pattern_covers(ufl.Form(cells), J):
+        return [J]
+    return [ufl.Form(cells), ufl.Form(others)]
 
 
 def jacobian_at_rest(F: ufl.Form, u: fem.Function, coefficients=()) -> ufl.Form:
