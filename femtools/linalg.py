@@ -532,7 +532,8 @@ class NewtonSolver:
     one the last solve started from and the latest iterate, so that solves
     which all start from one state (a time window's checkpoint, to which every
     coupling iteration returns) assemble it there once.  The lifting of Dirichlet values is
-    skipped when the iterate already satisfies them (it would add nothing).
+    skipped when the iterate already satisfies them (it would add nothing), and made with the
+    Jacobian the step solves with (:meth:`residual`).
 
     Convergence: ``|du| <= rtol |u|``, or the remaining error estimated from
     the contraction of the last two corrections, theta / (1 - theta) |du| with
@@ -661,9 +662,10 @@ class NewtonSolver:
                             for part in split_by_integral_type(self._J_ufl))
         return self._J
 
-    def _step_jacobian(self) -> tuple:
-        """The compiled parts of the Jacobian the next step solves with (held, or to be assembled)."""
-        return _parts(self.J if self._exact else self.J_reference)
+    def _lifting_jacobian(self, exact: bool) -> tuple:
+        """The compiled parts of the Jacobian that lifts the Dirichlet values: the exact one if
+        ``exact``, else the one the next step solves with (held, or to be assembled)."""
+        return _parts(self.J if exact or self._exact else self.J_reference)
 
     def invalidate_jacobian(self) -> None:
         """Factorise again at the next iteration (e.g. coefficients of J changed)."""
@@ -816,18 +818,22 @@ class NewtonSolver:
         comm = self.u.function_space.mesh.comm
         return comm.allreduce(ok, op=MPI.LAND) if comm.size > 1 else ok
 
-    def residual(self, start: bool = False) -> PETSc.Vec:
+    def residual(self, start: bool = False, exact_lifting: bool = False) -> PETSc.Vec:
         """``F(u)`` - nodal loads, with Dirichlet rows holding ``u - g`` (the Newton convention);
-        ``start``: at the state a solve starts from (see :meth:`state_residual`)."""
+        ``start``: at the state a solve starts from (see :meth:`state_residual`).
+
+        Where u does not hold the Dirichlet values g yet, the other rows get the lifting J (g - u)
+        with the Jacobian the next step solves with (the step is then that of the kept matrix with
+        its Dirichlet columns: Newton's with the exact one), or with the exact one if ``exact_lifting``
+        (the linear path's step, whose acceptance test was set with it)."""
         state = self.state_residual(start)
         with self.b.localForm() as loc:
             loc.set(0.0)
         if self.F_data is not None:
             fem_petsc.assemble_vector(self.b, self.F_data)
         if not self._dirichlet_satisfied():
-            # lifted with the Jacobian the next step solves with: the step is then that of the kept
-            # matrix with its Dirichlet columns (exact J: Newton's step), and small loads compile no J
-            for part in self._step_jacobian():
+            # (a small-load solve with the kept linearisation at rest then compiles no exact Jacobian)
+            for part in self._lifting_jacobian(exact_lifting):
                 fem_petsc.apply_lifting(self.b, [part], bcs=[self.bcs], x0=[self.u.vector], scale=-1.0)
         self.b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         self.b.axpy(1.0, state)
@@ -887,7 +893,7 @@ class NewtonSolver:
             self._have_jacobian = False
         for it in range(1, self.max_it + 1):
             t0 = time.perf_counter()
-            self.residual(start=it == 1)
+            self.residual(start=it == 1, exact_lifting=linear_path)
             self.stats["assemble_time"] += time.perf_counter() - t0
             if linear_path and initial_residual is None:
                 initial_residual = self.b.norm()
