@@ -1049,16 +1049,17 @@ def _schur_complement(K: "scipy.sparse.csr_matrix", keep: np.ndarray, icntl14: i
 
 
 def _pattern_covers(reference: ufl.Form | None, J: ufl.Form) -> bool:
-    """Whether the matrix pattern of ``reference`` holds that of ``J`` (same spaces): it has a
-    cell integral over every cell, which couples all dofs of a cell, and each of J's interior
-    facet integrals (exterior facet couplings lie within one cell)."""
-    if reference is None:
+    """Whether the matrix pattern of ``reference`` holds that of ``J`` (same spaces): it has an
+    integral of every kind (type, subdomain) J has (a pattern depends on where forms integrate,
+    not on what), or a cell integral over every cell, which couples all dofs of a cell, and each
+    of J's interior facet integrals (exterior facet couplings lie within one cell)."""
+    if reference is None or reference.arguments() != J.arguments():
         return False
     def kinds(form):
         return {(itg.integral_type(), itg.subdomain_id()) for itg in form.integrals()}
     mine, theirs = kinds(reference), kinds(J)
-    return (("cell", "everywhere") in mine and reference.arguments() == J.arguments()
-            and all(t != "interior_facet" or (t, s) in mine for t, s in theirs))
+    return theirs <= mine or (("cell", "everywhere") in mine
+                              and all(t != "interior_facet" or (t, s) in mine for t, s in theirs))
 
 
 def split_by_integral_type(J: ufl.Form) -> list[ufl.Form]:
