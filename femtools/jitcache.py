@@ -18,6 +18,14 @@ its library) goes to FFCx's own function, unchanged.
 it cannot (``XDG_CACHE_HOME`` names a file, a read-only mount, ...), the
 forms are compiled into ``$TMPDIR/gelcell-fenics-<uid>`` (or a fresh
 temporary directory) instead, with one warning; a run never fails on it.
+
+:func:`install` also makes UFL order Constants by their creation count, as it
+orders Coefficients (:func:`sort_constants_by_count`): UFL sorts the operands
+of a sum by comparing terminals, Constants by their text, ``"...(), 10)"``
+before ``"...(), 9)"``, so the same form built after a different number of
+Constants had another operand order, another signature, and was compiled
+again (the same gel's Jacobian twice in one test, or once more in every
+``mpirun`` subprocess).
 """
 
 from __future__ import annotations
@@ -30,7 +38,7 @@ import os
 import stat
 import tempfile
 
-__all__ = ["install", "installed", "writable_directory"]
+__all__ = ["install", "installed", "sort_constants_by_count", "writable_directory"]
 
 _ORIGINAL = "_gelcell_original_get_cached_module"
 _log = logging.getLogger(__name__)
@@ -95,6 +103,24 @@ def _cached_library(cache_dir: str, module_name: str) -> str | None:
     return None
 
 
+def _cmp_constant(a, b) -> int:
+    """-1, 0, 1 as ``a`` was created before, as, or after ``b`` (ufl.sorting's convention)."""
+    x, y = a.count(), b.count()
+    return -1 if x < y else (0 if x == y else 1)
+
+
+def sort_constants_by_count() -> None:
+    """Let UFL's canonical operand order compare Constants by creation count, not by text.
+
+    The relative order of creation is a property of the form (UFL compares Coefficients so), and the
+    form signature renumbers the counts: the signature no longer depends on how many Constants the
+    process had made before.
+    """
+    from ufl import sorting
+    from ufl.constant import Constant
+    sorting._terminal_cmps[Constant._ufl_typecode_] = _cmp_constant
+
+
 def install() -> bool:
     """Wrap FFCx's cache look-up (once per process); False if this FFCx has no such function."""
     try:
@@ -106,6 +132,7 @@ def install() -> bool:
         return False
     if hasattr(jit, _ORIGINAL):
         return True
+    sort_constants_by_count()
     _usable_cache_dir()
 
     def get_cached_module(module_name, object_names, cache_dir, timeout):

@@ -32,7 +32,7 @@ from femtools.errors import NewtonError, SingularSystemError
 __all__ = ["DirectSolver", "BlockTriangularSolver", "is_symmetric", "LinearSolver", "NewtonSolver", "SolverStats",
            "direct_solver", "assemble_residual_vector", "jacobian_at_rest", "SingularSystemError",
            "NewtonError", "schur_complement", "gather_submatrix", "gather_entries",
-           "condensed_matrix", "distributed_schur_complement"]
+           "condensed_matrix", "distributed_schur_complement", "split_by_integral_type"]
 
 _counter = itertools.count()
 _ICNTL = re.compile(r"^mat_mumps_icntl_(\d+)$")
@@ -334,10 +334,19 @@ class BlockTriangularSolver:
         out[i1] = x1.array_r
 
 
+def _parts(form) -> tuple:
+    """A compiled form, or the compiled parts of one form (:func:`split_by_integral_type`), as a tuple."""
+    return tuple(form) if isinstance(form, (tuple, list)) else (form,)
+
+
 def _assemble_into(A: PETSc.Mat, form, bcs) -> None:
-    """Assemble ``form`` into ``A``, Dirichlet rows of ``bcs`` set to the identity."""
+    """Assemble ``form`` (a compiled form or a tuple of its parts) into ``A``, Dirichlet rows of
+    ``bcs`` set to the identity."""
     A.zeroEntries()
-    fem_petsc.assemble_matrix(A, form, bcs=bcs)
+    for k, part in enumerate(_parts(form)):
+        if k:
+            A.assemble(PETSc.Mat.AssemblyType.FLUSH)    # the previous part set the diagonal by insertion
+        fem_petsc.assemble_matrix(A, part, bcs=bcs)
     A.assemble()
 
 
@@ -523,7 +532,8 @@ class NewtonSolver:
     one the last solve started from and the latest iterate, so that solves
     which all start from one state (a time window's checkpoint, to which every
     coupling iteration returns) assemble it there once.  The lifting of Dirichlet values is
-    skipped when the iterate already satisfies them (it would add nothing).
+    skipped when the iterate already satisfies them (it would add nothing), and made with the
+    Jacobian the step solves with (:meth:`residual`).
 
     Convergence: ``|du| <= rtol |u|``, or the remaining error estimated from
     the contraction of the last two corrections, theta / (1 - theta) |du| with
@@ -580,7 +590,8 @@ class NewtonSolver:
         self.stats = SolverStats()
         self.history: list[float] = []
         comm = u.function_space.mesh.comm
-        pattern = self.J_reference if _pattern_covers(J_reference, J) else self.J
+        # (the first part of J: its cell integrals, which hold the pattern of its other part)
+        pattern = self.J_reference if _pattern_covers(J_reference, J) else self.J[0]
         self.A = fem_petsc.create_matrix(pattern)
         self.b = fem_petsc.create_vector(self.F)
         self._bc_check = self.A.createVecRight()
@@ -641,12 +652,20 @@ class NewtonSolver:
         return self.u.function_space.mesh.comm.allreduce(self._active.getLocalSize(), op=MPI.SUM)
 
     @property
-    def J(self) -> fem.FormMetaClass:
+    def J(self) -> tuple:
         """The exact Jacobian, compiled when first needed: with a ``J_reference`` a solve at
-        small loads never needs it, and a finite-strain 3D Jacobian takes tens of seconds to compile."""
+        small loads never needs it, and a finite-strain 3D Jacobian takes tens of seconds to compile.
+        A tuple of compiled forms whose sum it is: its cell integrals and its boundary terms
+        (:func:`split_by_integral_type`), compiled apart so that the cell kernel is shared."""
         if self._J is None:
-            self._J = fem.form(self._J_ufl, form_compiler_params=self._fcp)
+            self._J = tuple(fem.form(part, form_compiler_params=self._fcp)
+                            for part in split_by_integral_type(self._J_ufl))
         return self._J
+
+    def _lifting_jacobian(self, exact: bool) -> tuple:
+        """The compiled parts of the Jacobian that lifts the Dirichlet values: the exact one if
+        ``exact``, else the one the next step solves with (held, or to be assembled)."""
+        return _parts(self.J if exact or self._exact else self.J_reference)
 
     def invalidate_jacobian(self) -> None:
         """Factorise again at the next iteration (e.g. coefficients of J changed)."""
@@ -799,16 +818,23 @@ class NewtonSolver:
         comm = self.u.function_space.mesh.comm
         return comm.allreduce(ok, op=MPI.LAND) if comm.size > 1 else ok
 
-    def residual(self, start: bool = False) -> PETSc.Vec:
+    def residual(self, start: bool = False, exact_lifting: bool = False) -> PETSc.Vec:
         """``F(u)`` - nodal loads, with Dirichlet rows holding ``u - g`` (the Newton convention);
-        ``start``: at the state a solve starts from (see :meth:`state_residual`)."""
+        ``start``: at the state a solve starts from (see :meth:`state_residual`).
+
+        Where u does not hold the Dirichlet values g yet, the other rows get the lifting J (g - u)
+        with the Jacobian the next step solves with (the step is then that of the kept matrix with
+        its Dirichlet columns: Newton's with the exact one), or with the exact one if ``exact_lifting``
+        (the linear path's step, whose acceptance test was set with it)."""
         state = self.state_residual(start)
         with self.b.localForm() as loc:
             loc.set(0.0)
         if self.F_data is not None:
             fem_petsc.assemble_vector(self.b, self.F_data)
         if not self._dirichlet_satisfied():
-            fem_petsc.apply_lifting(self.b, [self.J], bcs=[self.bcs], x0=[self.u.vector], scale=-1.0)
+            # (a small-load solve with the kept linearisation at rest then compiles no exact Jacobian)
+            for part in self._lifting_jacobian(exact_lifting):
+                fem_petsc.apply_lifting(self.b, [part], bcs=[self.bcs], x0=[self.u.vector], scale=-1.0)
         self.b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         self.b.axpy(1.0, state)
         if self._load_dofs.size:
@@ -867,7 +893,7 @@ class NewtonSolver:
             self._have_jacobian = False
         for it in range(1, self.max_it + 1):
             t0 = time.perf_counter()
-            self.residual(start=it == 1)
+            self.residual(start=it == 1, exact_lifting=linear_path)
             self.stats["assemble_time"] += time.perf_counter() - t0
             if linear_path and initial_residual is None:
                 initial_residual = self.b.norm()
@@ -1023,16 +1049,34 @@ def _schur_complement(K: "scipy.sparse.csr_matrix", keep: np.ndarray, icntl14: i
 
 
 def _pattern_covers(reference: ufl.Form | None, J: ufl.Form) -> bool:
-    """Whether the matrix pattern of ``reference`` holds that of ``J`` (same spaces): it has a
-    cell integral over every cell, which couples all dofs of a cell, and each of J's interior
-    facet integrals (exterior facet couplings lie within one cell)."""
-    if reference is None:
+    """Whether the matrix pattern of ``reference`` holds that of ``J`` (same spaces): it has an
+    integral of every kind (type, subdomain) J has (a pattern depends on where forms integrate,
+    not on what), or a cell integral over every cell, which couples all dofs of a cell, and each
+    of J's interior facet integrals (exterior facet couplings lie within one cell)."""
+    if reference is None or reference.arguments() != J.arguments():
         return False
     def kinds(form):
         return {(itg.integral_type(), itg.subdomain_id()) for itg in form.integrals()}
     mine, theirs = kinds(reference), kinds(J)
-    return (("cell", "everywhere") in mine and reference.arguments() == J.arguments()
-            and all(t != "interior_facet" or (t, s) in mine for t, s in theirs))
+    return theirs <= mine or (("cell", "everywhere") in mine
+                              and all(t != "interior_facet" or (t, s) in mine for t, s in theirs))
+
+
+def split_by_integral_type(J: ufl.Form) -> list[ufl.Form]:
+    """``J`` as two forms, its cell integrals and its other integrals, derivatives expanded; ``[J]``
+    if either is empty or the cell integrals' pattern does not hold the others' (:func:`_pattern_covers`).
+
+    The form compiler caches a form by its signature: the cell part of a problem's Jacobian is then
+    compiled once for every set of boundary terms (interfaces, loads, their facet tags), and a
+    manufactured solution's source terms, whose derivative is zero, drop out of it.  A 3D
+    finite-strain cell kernel is the costly one (docs/performance.md).
+    """
+    J = ufl.algorithms.expand_derivatives(J)
+    cells = [itg for itg in J.integrals() if itg.integral_type() == "cell"]
+    others = [itg for itg in J.integrals() if itg.integral_type() != "cell"]
+    if not cells or not others or not _pattern_covers(ufl.Form(cells), J):
+        return [J]
+    return [ufl.Form(cells), ufl.Form(others)]
 
 
 def jacobian_at_rest(F: ufl.Form, u: fem.Function, coefficients=()) -> ufl.Form:

@@ -137,3 +137,27 @@ def test_a_first_compilation_leaves_the_arguments_of_a_settled_mesh_equal(tmp_pa
     PoroelasticGelSolver(msh, ft, GelParameters(phi_s0=0.1, lambda_s=1.5, xi=4.5e4, eta=0.02, Ca=1e-6),
                          fluid_interfaces={"in": LEFT, "out": RIGHT}, kinematics="finite", no_slip=[RIGHT])
     assert msh.ufl_domain().ufl_coordinate_element().variant() == "equispaced"
+
+
+def test_form_signature_does_not_depend_on_how_many_constants_came_before():
+    """The same form built twice, with the process's Constant count below 10 and above it: the same
+    signature, so FFCx compiles it once (femtools.jitcache.sort_constants_by_count; UFL sorts the
+    operands of a sum by comparing Constants, by their text "...(), 10)" < "...(), 9)" otherwise)."""
+    import ufl
+    from dolfinx import fem, mesh
+
+    from femtools import jitcache
+
+    assert jitcache.install()
+    msh = mesh.create_unit_square(MPI.COMM_SELF, 1, 1)
+
+    def form():
+        a, b = fem.Constant(msh, 1.0), fem.Constant(msh, 2.0)
+        return (a + b) * ufl.dx
+
+    signatures = []
+    for _ in range(3):
+        signatures.append(form().signature())
+        for _ in range(7):                      # the counts of the next pair gain a digit (or more)
+            fem.Constant(msh, 0.0)
+    assert len(set(signatures)) == 1, signatures
