@@ -11,33 +11,20 @@ time-dependent run), and 1 vs 2 MPI ranks.  Small kinematics throughout: the
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
 from mpi4py import MPI
 
+from device3d_cases import HEIGHT, MESH, monolithic, params_3d, partitioned
 from femtools.functions import values_at_points
-from gelcell.case import CaseParameters
 from gelcell.post.fields import relative_differences
 from gelcell.post.quantities import flat_quantities
-from gelcell.run.solve import solve_monolithic, solve_partitioned
 from mpi_run import run_mpi
 from test_transient import relative_difference
 from transient_cases import run, tau
 
 COMM = MPI.COMM_WORLD
-#: the chip height of model.md section 10 (100 µm)
-HEIGHT = 0.4
-#: the coarse size factor of these tests (the 3D devices' unknowns grow as its inverse cube)
-MESH_SIZE = 6.0
-
-
-def device_3d(case: str, walls: str = "noslip", cell: bool = True, mesh_size: float = MESH_SIZE,
-              height: float = HEIGHT) -> CaseParameters:
-    p = CaseParameters.default(case, with_cell=cell).with_mesh_size(mesh_size).with_kinematics("small")
-    return p.replace(geometry=dataclasses.replace(p.geometry, chip_height=height, walls=walls))
 
 
 # --------------------------------------------------------------------------- slab = planar device
@@ -52,10 +39,8 @@ def _owned_nodes(f) -> tuple[np.ndarray, np.ndarray]:
 def _slab_minus_plane(case: str, mesh_size: float) -> dict[str, tuple[float, float]]:
     """Per field: the RMS over the planar device's nodes of |slab - plane| / RMS |plane|, the slab
     evaluated at mid-depth of its computed half height, and the same for its z component."""
-    planar = CaseParameters.default(case, with_cell=False).with_mesh_size(mesh_size).with_kinematics("small")
-    plane = solve_partitioned(planar, verbose=False, checks=False).fields
-    slab = solve_partitioned(device_3d(case, "symmetric", cell=False, mesh_size=mesh_size),
-                             verbose=False, checks=False).fields
+    plane = partitioned(case, mesh=mesh_size, height=None, with_cell=False).fields
+    slab = partitioned(case, "symmetric", mesh=mesh_size, with_cell=False).fields
     out = {}
     for name in ("fluid_velocity", "interstitial_velocity", "displacement", "pore_pressure"):
         x, planar = _owned_nodes(getattr(plane, name))
@@ -86,18 +71,11 @@ def test_slab_equals_the_planar_device_to_discretisation_error(case):
 
 
 # --------------------------------------------------------------------------- partitioned = monolithic
-@pytest.fixture(scope="module")
-def partitioned():
-    """The partitioned steady runs of both 3D devices with a cell, solved once for this module."""
-    return {case: solve_partitioned(device_3d(case), verbose=False, checks=False) for case in ("shear", "normal")}
-
-
 @pytest.mark.parametrize("case", ["shear", "normal"])
-def test_partitioned_equals_monolithic_with_a_cell(partitioned, case):
+def test_partitioned_equals_monolithic_with_a_cell(case):
     """The 3D device with its spherical cell and bonded floor: the partitioned fields (each on its
     own mesh, coupled to 1e-10) equal the monolithic reference's to 1e-6 relative (L2)."""
-    part = partitioned[case]
-    mono = solve_monolithic(device_3d(case), checks=False)
+    part, mono = partitioned(case), monolithic(case)
     differences = relative_differences(part.fields, mono.fields)
     print(f"{case} 3D: {part.summary['coupling']['iterations']} coupling iterations; "
           + ", ".join(f"{k} {v:.1e}" for k, v in differences.items()))
@@ -110,7 +88,7 @@ def test_partitioned_equals_monolithic_with_a_cell(partitioned, case):
 @pytest.mark.parametrize("case", ["shear", "normal"])
 def test_partitioned_equals_monolithic_in_every_window(case):
     """Three backward-Euler windows from rest (dt = tau_c/20): every window's quantities agree to 1e-6."""
-    p = device_3d(case)
+    p = params_3d(case)
     kw = dict(dt=tau(p) / 20, t_end=2 * tau(p) / 20, scheme="be")
     partitioned, monolithic = run(p, **kw), run(p, monolithic=True, **kw)
     assert len(partitioned["rows"]) == len(monolithic["rows"]) == 3
@@ -120,12 +98,12 @@ def test_partitioned_equals_monolithic_in_every_window(case):
 
 
 # --------------------------------------------------------------------------- 1 and 2 ranks
-def test_same_3d_device_on_one_and_two_ranks(partitioned):
+def test_same_3d_device_on_one_and_two_ranks():
     """The 3D shear device with a cell: the summary's quantities and the coupling iterations of this
     (serial) process and of a run on 2 ranks."""
-    parallel = run_mpi("device_summary.py", 2, ["shear", str(MESH_SIZE), str(HEIGHT), "small"])
-    serial = flat_quantities(partitioned["shear"].summary)
-    serial["iterations"] = partitioned["shear"].summary["coupling"]["iterations"]
+    parallel = run_mpi("device_summary.py", 2, ["shear", str(MESH), str(HEIGHT), "small"])
+    serial = flat_quantities(partitioned("shear").summary)
+    serial["iterations"] = partitioned("shear").summary["coupling"]["iterations"]
     assert serial["iterations"] == parallel["iterations"]
     for key, value in serial.items():
         assert parallel[key] == pytest.approx(value, rel=1e-8, abs=1e-14), key

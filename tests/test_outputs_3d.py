@@ -22,7 +22,6 @@ Every check reduces over MPI (``./scripts/pytest-2-ranks tests/test_outputs_3d.p
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import xml.etree.ElementTree as ET
 
@@ -33,27 +32,17 @@ import scipy.spatial
 
 from mpi4py import MPI
 
-from gelcell.case import CaseParameters
-from gelcell.coupled.defaults import partitioned_config
-from gelcell.coupled.device import Device
-from gelcell.geometry import described
-from gelcell.post.fields import fields_from_device
 from gelcell.post.quantities import gamma_profiles
+from device3d_cases import HEIGHT, MESH, partitioned
 
 COMM = MPI.COMM_WORLD
-HEIGHT = 0.4
-MESH = 6.0     # every element size x6: a coarse device that couples in a few seconds
 
 
 def device_3d(case: str = "shear", walls: str = "noslip", mesh: float = MESH, height: float = HEIGHT,
               with_cell: bool = True, kinematics: str = "small"):
-    """The 3D device of ``case`` solved by the partitioned scheme, and its fields."""
-    p = CaseParameters.default(case, with_cell)
-    p = p.replace(geometry=dataclasses.replace(p.geometry, chip_height=height, walls=walls))
-    p = described(p.with_mesh_size(mesh).with_kinematics(kinematics))
-    dev = Device(p, COMM)
-    dev.solve(partitioned_config(p, None), verbose=False)
-    return dev, fields_from_device(dev)
+    """The 3D device of ``case`` solved by the partitioned scheme (shared, tests/device3d_cases.py), and its fields."""
+    run = partitioned(case, walls, mesh, height, with_cell, kinematics)
+    return run.solver, run.fields
 
 
 @pytest.fixture(scope="module")
@@ -79,10 +68,7 @@ def test_gamma1_profile_is_the_mid_height_line(shear):
 
 
 def _planar_profile(case: str, mesh: float) -> dict:
-    p = described(CaseParameters.default(case, False).with_mesh_size(mesh).with_kinematics("small"))
-    dev = Device(p, COMM)
-    dev.solve(partitioned_config(p, None), verbose=False)
-    return gamma_profiles(fields_from_device(dev), "Gamma1")
+    return gamma_profiles(partitioned(case, mesh=mesh, height=None, with_cell=False).fields, "Gamma1")
 
 
 def test_slab_profile_is_the_planar_one():

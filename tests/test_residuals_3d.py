@@ -22,9 +22,8 @@ import pytest
 
 from mpi4py import MPI
 
-from gelcell.coupled.monolithic import MonolithicSolver, monolithic_coefficients
-from gelcell.geometry.meshes import build_meshes
-from gelcell.post.fields import fields_from_monolithic, relative_differences
+import device3d_cases
+from gelcell.post.fields import relative_differences
 from gelcell.post.residuals import interface_residuals
 from test_outputs_3d import device_3d
 
@@ -40,14 +39,7 @@ def partitioned(request):
 
 @pytest.fixture(scope="module")
 def monolithic(partitioned):
-    p = partitioned.params
-    device_mesh = build_meshes(p, COMM, whole=True)
-    msh, cell_tags, facet_tags = device_mesh.whole
-    layout = device_mesh.layout
-    solver = MonolithicSolver(msh, cell_tags, facet_tags, layout.boundaries, monolithic_coefficients(p),
-                              cell_region_tags=layout.cell_region_tags or None)
-    solver.solve()
-    return fields_from_monolithic(solver, device_mesh, p)
+    return device3d_cases.monolithic(partitioned.params.case).fields
 
 
 def _worst(residuals: dict) -> float:
