@@ -117,6 +117,18 @@ def test_the_written_tables_read_back_as_the_same_configuration(tmp_path):
     assert again == config
 
 
+def test_a_3d_device_from_the_command_line_reads_back_from_its_case_file():
+    """--height, --walls and 4-entry --cells set the [geometry] keys of model.md section 10."""
+    config = config_of(["shear", "--height", "0.4", "--walls", "symmetric", "--cells", "2.0,-0.2,0.2,0.06"])
+    g = config.case.geometry
+    assert (g.chip_height, g.walls, g.cell_list_3d()) == (0.4, "symmetric", [(2.0, -0.2, 0.2, 0.06)])
+    assert resolve(tomllib.loads(toml_text(config.to_tables()))) == config
+    with pytest.raises(ParameterError, match=r"--cells '2.0,-0.2': each cell is X,Y,D, or X,Y,Z,D"):
+        config_of(["shear", "--height", "0.4", "--cells", "2.0,-0.2"])
+    with pytest.raises(ParameterError, match=r"parameter 'cells\[0\].z'"):
+        config_of(["shear", "--height", "0.4", "--cells", "2.0,-0.2,0.1,0.06"])      # not at mid-height
+
+
 def test_toml_text_round_trips_what_toml_holds_and_refuses_the_rest():
     tables = {"physics": {"ca": 1e-300, "big": -math.inf, "none": None},
               "geometry": {"cells": [[1.0, -0.2, 0.06]], "file": 'a "quoted" näme.geo'},
