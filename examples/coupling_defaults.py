@@ -18,7 +18,9 @@
 # Usage:
 #
 #     .venv/bin/python examples/coupling_defaults.py tube [--windows 20]
-#     .venv/bin/python examples/coupling_defaults.py device [--out DIR] [--t-end 2e-7]
+#     .venv/bin/python examples/coupling_defaults.py device [--out DIR]
+#
+# (`--variants NAME ...` runs only those variants and the baseline.)
 
 from __future__ import annotations
 
@@ -37,6 +39,11 @@ sys.path.insert(0, str(ROOT / "flexible_tube"))
 import coupling as cp  # noqa: E402
 import tube  # noqa: E402
 
+#: the end of a device's time-dependent run: a few windows of its default dt (shear 6, normal 4)
+T_END = {"shear": 2e-7, "normal": 6e-7}
+#: the baseline's own filter (the tube: the library's, the devices: coupling_config's) is not rerun
+SAME_AS_BASELINE = {"tube": ("filter qr2 1e-2", "accelerated, qr2 1e-2"),
+                    "device": ("filter qr2 1e-3", "accelerated, qr2 1e-3")}
 #: one setting changed from the baseline per variant (a [coupling] table on top of the baseline's)
 VARIANTS = {
     "baseline": {},
@@ -48,7 +55,9 @@ VARIANTS = {
     "filter qr1 1e-2": {"filter": {"type": "qr1", "limit": 1e-2}},
     "no filter": {"filter": {"type": "none"}},
     "accelerated, window": {"data": "accelerated", "state_reload": "window"},
+    "accelerated, qr2 1e-2": {"data": "accelerated", "filter": {"type": "qr2", "limit": 1e-2}},
     "accelerated, qr2 1e-3": {"data": "accelerated", "filter": {"type": "qr2", "limit": 1e-3}},
+    "accelerated, qr2 1e-4": {"data": "accelerated", "filter": {"type": "qr2", "limit": 1e-4}},
     "accelerated, no filter": {"data": "accelerated", "filter": {"type": "none"}},
 }
 TUBE_ACCELERATIONS = {
@@ -59,13 +68,11 @@ TUBE_ACCELERATIONS = {
 
 
 def _tube_config(acceleration: dict, variant: dict, limit: float) -> dict:
-    """The tube's [coupling] table: the library's defaults but for the acceleration and ``variant``."""
-    measure = {"type": "relative", "limit": limit}
-    if "data" in variant:
-        measure["data"] = variant["data"]
+    """The tube's [coupling] table: the library's defaults before the study, then ``variant`` on top."""
+    measure = {"type": "relative", "limit": limit, "data": variant.get("data", "*")}
     acc = dict(acceleration)
-    if "filter" in variant:
-        acc["filter"] = variant["filter"]
+    if acc["type"] != "aitken":
+        acc["filter"] = variant.get("filter", {"type": "qr2", "limit": 1e-2})
     config = {"scheme": "serial-implicit", "order": ["flow", "wall"], "verbose": False, "max_iterations": 200,
               "convergence": [measure], "acceleration": acc}
     if "state_reload" in variant:
@@ -73,7 +80,7 @@ def _tube_config(acceleration: dict, variant: dict, limit: float) -> dict:
     return config
 
 
-def tube_table(windows: int, dt: float = 1e-3, limit: float = 1e-10) -> None:
+def tube_table(windows: int, names: list[str], dt: float = 1e-3, limit: float = 1e-10) -> None:
     """Print the tube's iteration totals per acceleration and variant, and the answer's change."""
     params = tube.TubeParameters(cells=100, period=0.01)
     print(f"flexible tube: 100 cells, dt = {dt:g} s, {windows} windows; total iterations "
@@ -81,14 +88,16 @@ def tube_table(windows: int, dt: float = 1e-3, limit: float = 1e-10) -> None:
     for label, acceleration in TUBE_ACCELERATIONS.items():
         row, reference = [], None
         for name, variant in VARIANTS.items():
-            if ("filter" in variant and acceleration["type"] == "aitken") or name == "filter qr2 1e-2":
-                continue            # Aitken has no filter; qr2 1e-2 is the library's baseline
+            if ("filter" in variant and acceleration["type"] == "aitken") or name in SAME_AS_BASELINE["tube"] \
+                    or (name not in names and name != "baseline"):
+                continue            # Aitken has no filter
             scheme = cp.build_scheme(_tube_config(acceleration, variant, limit),
                                      [tube.TubeFlow(params), tube.TubeWall(params)], tube.tube_data())
             try:
                 counts = scheme.run(t_end=windows * dt, dt=dt).iterations_per_window
             except cp.CouplingError as exc:
                 row.append(f"{name}: failed ({str(exc).split(':')[0]})")
+                print(f"  {label}: {row[-1]}", flush=True)
                 continue
             radius = scheme.latest("radius")[:, 0]
             reference = radius if reference is None else reference
@@ -97,12 +106,10 @@ def tube_table(windows: int, dt: float = 1e-3, limit: float = 1e-10) -> None:
 
 
 def _device_table(variant: dict, transient: bool) -> dict:
-    """A case file's [coupling] table: ``variant`` on top of the device's defaults."""
-    table: dict = {}
+    """A case file's [coupling] table: the device's defaults before the study, then ``variant`` on top."""
+    table: dict = {"convergence": [{"type": "relative", "limit": 1e-10, "data": variant.get("data", "*")}]}
     if "state_reload" in variant:
         table["state_reload"] = variant["state_reload"]
-    if "data" in variant:
-        table["convergence"] = [{"type": "relative", "limit": 1e-10, "data": variant["data"]}]
     if "filter" in variant:
         table["acceleration"] = {"filter": variant["filter"]}
     return table
@@ -128,8 +135,8 @@ def _run_device(case: str, prior: str | None, transient: bool, t_end: float, var
     config = out / "case.toml"
     config.write_text(_toml(_device_table(variant, transient)))
     result = out / "result"
-    cmd = [sys.executable, "-c", "from gelcell.cli import main; main()", "run", case, "--mesh-size", "3", "--config", str(config),
-           "--no-figures", "--quiet", "--out", str(result)]
+    cmd = [sys.executable, "-c", "from gelcell.cli import main; main()", "run", case, "--mesh-size", "3",
+           "--config", str(config), "--no-figures", "--quiet", "--out", str(result)]
     cmd += ["--jacobian-prior", prior] if prior else []
     cmd += ["--transient", "--t-end", f"{t_end:g}"] if transient else []
     if not (result / "summary.json").exists():           # a run of an earlier call is kept
@@ -154,7 +161,7 @@ def _answer_change(answer: np.ndarray, reference: np.ndarray) -> float:
     return float(np.max(np.max(np.abs(answer - reference), axis=0)[keep] / scale[keep]))
 
 
-def device_table(out: pathlib.Path, t_end: float) -> None:
+def device_table(out: pathlib.Path, names: list[str]) -> None:
     """Print the devices' iterations per variant (steady: the run's; time-dependent: per window)."""
     runs = [(case, prior, transient) for transient in (False, True) for case in ("shear", "normal")
             for prior in (None, "none")]
@@ -162,10 +169,11 @@ def device_table(out: pathlib.Path, t_end: float) -> None:
         label = f"{case} {'time-dependent' if transient else 'steady'}, prior {prior or 'default'}"
         reference, row = None, []
         for name, variant in VARIANTS.items():
-            if ("state_reload" in variant and not transient) or name in ("filter qr2 1e-3", "accelerated, qr2 1e-3"):
-                continue            # steady runs never restore a state; qr2 1e-3 is the device's baseline
+            if ("state_reload" in variant and not transient) or name in SAME_AS_BASELINE["device"] \
+                    or (name not in names and name != "baseline"):
+                continue            # steady runs never restore a state
             tag = f"{case}-{'tr' if transient else 'st'}-{prior or 'default'}-{name.replace(' ', '_')}"
-            iterations, answer = _run_device(case, prior, transient, t_end, variant, out / tag)
+            iterations, answer = _run_device(case, prior, transient, T_END[case], variant, out / tag)
             if not iterations:
                 row.append(f"{name}: failed")
                 print(f"  {label}: {row[-1]}", flush=True)
@@ -181,12 +189,12 @@ def main(argv=None) -> None:
     parser.add_argument("what", choices=("tube", "device"))
     parser.add_argument("--windows", type=int, default=20, help="tube: time windows")
     parser.add_argument("--out", default="results/coupling-defaults", help="device: the runs' directory")
-    parser.add_argument("--t-end", type=float, default=2e-7, help="device: end of the time-dependent runs")
+    parser.add_argument("--variants", nargs="*", default=list(VARIANTS), help="the variants to run (and the baseline)")
     args = parser.parse_args(argv)
     if args.what == "tube":
-        tube_table(args.windows)
+        tube_table(args.windows, args.variants)
     else:
-        device_table(pathlib.Path(args.out), args.t_end)
+        device_table(pathlib.Path(args.out), args.variants)
 
 
 if __name__ == "__main__":
