@@ -281,11 +281,13 @@ class CouplingScheme:
         for i, m in enumerate(self.config.convergence):
             if m.data == "*":
                 targets = list(self.data)
+            elif m.data == "accelerated":
+                targets = list(self.accelerated) if self.implicit else list(self.data)
             elif m.data in self.data:
                 targets = [m.data]
             else:
                 raise ValueError(f"coupling.convergence[{i}].data = {m.data!r} is not a coupling "
-                                 f"data; allowed values: '*', "
+                                 f"data; allowed values: '*', 'accelerated', "
                                  f"{', '.join(repr(n) for n in self.data)}")
             measures += [build_measure(m.type, name, m.limit, m.suffices) for name in targets]
         if self.implicit and not measures:

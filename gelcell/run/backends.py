@@ -50,8 +50,9 @@ class PartitionedBackend:
         if abs(self.scheme.time - t) > 1e-12 * max(abs(t), dt):
             raise RuntimeError(f"coupling time {self.scheme.time} differs from the run's time {t}")
         rec = self.scheme.advance_window(dt)
-        last = rec.records[-1].measure_values if rec.records else {}
-        residual = max(last.values()) if last else 0.0
+        # the convergence measures' largest value: the forward data the measures leave out only change
+        measured = rec.records[-1].measures if rec.records else []
+        residual = max((m.value for m in measured), default=0.0)
         return WindowOutcome(rec.iterations, residual)
 
     def update_fields(self) -> None:

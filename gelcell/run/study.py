@@ -212,7 +212,9 @@ def run_one(case: StudyCase, method: Method, mesh_size: float, reference, max_it
     wall = time.perf_counter() - t0
     status = _classify(result if error is None else None, error)
     history = {k: [float(x) for x in v] for k, v in result.residual_history.items()}
-    final = max((v[-1] for v in history.values() if v), default=float("nan"))
+    # the convergence measures' last values (the forward data they leave out only change)
+    last = result.windows[-1].records[-1].measures if result.windows and result.windows[-1].records else []
+    final = max((m.value for m in last), default=float("nan"))
     record = {"case": case.name, "scheme": method.scheme, "acceleration": method.name,
               "robin_factor": method.robin_factor, "converged": status == "converged", "status": status,
               "reason": str(error) if error is not None else result.reason,

@@ -66,7 +66,7 @@ def test_full_toml_file_is_read(tmp_path):
     assert cfg.order == ("fluid", "gel")
     assert math.isinf(cfg.divergence_factor)
     assert len(cfg.convergence) == 2 and cfg.convergence[1].suffices
-    assert cfg.convergence[1].data == "*"
+    assert cfg.convergence[1].data == "accelerated"      # the default (docs/coupling-study.md)
     assert cfg.acceleration.time_windows_reused == 8
     assert cfg.acceleration.filter == cp.FilterConfig(type="qr1", limit=1e-6)
     assert cfg.acceleration.preconditioner.factors["Gamma1/traction"] == 1e-7
@@ -142,7 +142,7 @@ def _build(config):
 
 def test_scheme_level_errors_name_the_key():
     with pytest.raises(ValueError, match=r"coupling.convergence\[0\].data = 'Gamma/forces' is not a "
-                                         r"coupling data; allowed values: '\*', 'Gamma/force'"):
+                                         r"coupling data; allowed values: '\*', 'accelerated', 'Gamma/force'"):
         _build({"convergence": [{"data": "Gamma/forces", "type": "relative", "limit": 1e-8}]})
     with pytest.raises(ValueError, match="an implicit scheme needs at least one convergence measure"):
         _build({})
@@ -157,6 +157,18 @@ def test_scheme_level_errors_name_the_key():
         _build({"convergence": MEASURE,
                 "acceleration": {"type": "iqn-ils",
                                  "preconditioner": {"type": "constant", "factors": {"Gamma/force": 1.0}}}})
+
+
+def test_measured_data_selectors():
+    """'*' measures every data; 'accelerated' the accelerated ones (serial: read before written), all if parallel."""
+    def measured(scheme, data):
+        built = _build({"scheme": scheme, "verbose": False,
+                        "convergence": [{"type": "relative", "limit": 1e-8, "data": data}]})
+        return sorted(m.data for m in built.measures), sorted(built.accelerated)
+    names, accelerated = measured("serial-implicit", "accelerated")
+    assert names == accelerated == ["Gamma/displacement"]
+    assert measured("serial-implicit", "*")[0] == ["Gamma/displacement", "Gamma/force"]
+    assert measured("parallel-implicit", "accelerated")[0] == ["Gamma/displacement", "Gamma/force"]
 
 
 def test_explicit_scheme_needs_no_measure():
