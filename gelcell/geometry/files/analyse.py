@@ -18,8 +18,8 @@ import numpy as np
 
 from gelcell.errors import ParameterError
 from gelcell.geometry.files.cells import CellGeometry, cell_specs
-from gelcell.geometry.files.names import ParsedGroups, parse_groups
-from gelcell.geometry.files.read import ELEMENT_TYPES, GeometryInfo, file_version, read_geometry
+from gelcell.geometry.files.names import WORDS, ParsedGroups, parse_groups
+from gelcell.geometry.files.read import GeometryInfo, file_version, read_geometry
 from gelcell.geometry.files.shapes import area_and_centroid, connected_surfaces, is_inside, is_straight, \
     symmetry_axis, where
 from gelcell.geometry.layout import DeviceBoundaries, DeviceLayout, SegmentInflow
@@ -38,16 +38,17 @@ class FileLayout:
     layout: DeviceLayout    #: conditions, cells, interfaces
     gel_depth: float        #: gel area / fluid-gel interface length
     enclosed_fluid: bool    #: some fluid region has no outlet (fixed only through an interface)
+    dimension: int = 2      #: 3: a device of volumes (surface_tags then holds volumes, curve_tags surfaces)
 
 
 def _check_mesh_kind(info: GeometryInfo, source: str) -> None:
-    """A planar file of triangles of order 1 or 2."""
-    if info.max_dim > 2:
-        raise ParameterError(f"{source}: it holds volumes (dimension 3); gelcell devices are 2-D")
-    bad = [t for t in info.element_types if t not in ELEMENT_TYPES]
+    """A planar file of triangles or a file with volumes of tetrahedra, of order 1 or 2."""
+    allowed = {2: (1, 8, 2, 9, 15), 3: (1, 8, 2, 9, 4, 11, 15)}[info.dimension]
+    bad = [t for t in info.element_types if t not in allowed]
     if bad:
         raise ParameterError(f"{source}: unsupported element type(s) {bad} (gmsh numbers); gelcell takes "
-                             f"triangles of order 1 or 2 (types 2, 9) with lines of order 1 or 2 (1, 8)")
+                             f"triangles of order 1 or 2 (types 2, 9) with lines of order 1 or 2 (1, 8), and "
+                             f"in a file with volumes tetrahedra of order 1 or 2 (4, 11)")
     if info.element_order not in (1, 2):
         raise ParameterError(f"{source}: Mesh.ElementOrder = {info.element_order}: gelcell meshes with "
                              f"order 2 (curved P2 triangles); orders 1 and 2 are accepted, not "
@@ -68,6 +69,8 @@ class _Analysis:
                         for name, _, ents, _ in groups for c in ents}
         self.gamma2: dict = {}       # cell -> its curves in the gel
         self.cut: dict = {}          # cell -> its curves on symmetry lines
+        #: the words of the regions and of their boundaries: surface and curve (2D), volume and surface (3D)
+        self.region_word, self.facet_word = WORDS[info.dimension]
 
     def stop_if_wrong(self) -> None:
         if self.problems:
@@ -80,8 +83,8 @@ class _Analysis:
     def unnamed_surfaces(self) -> None:
         unnamed = sorted(s for s in self.info.surface_polygons if s not in self.region and s not in self.cell_of)
         if unnamed:
-            self.problems.append(f"surface(s) {unnamed} are in no physical group: name each 'fluid', 'gel' or "
-                                 f"a cell")
+            self.problems.append(f"{self.region_word}(s) {unnamed} are in no physical group: name each 'fluid', "
+                                 f"'gel' or a cell")
 
     def classify_curves(self) -> None:
         """Every curve by the surfaces it bounds: a cell's, an interface, or a region's boundary."""
@@ -90,7 +93,7 @@ class _Analysis:
             if not up:
                 continue
             kind, gname = self.kind_of.get(c, (None, self.parsed.owner.get(c)))
-            label = f"curve {c} {where(self.info.curve_points[c])}"
+            label = f"{self.facet_word} {c} {where(self.info.curve_points[c])}"
             cells_here = sorted({self.cell_of[s] for s in up if s in self.cell_of})
             if cells_here:
                 self._cell_curve(c, up, cells_here, kind, gname, label)
@@ -98,7 +101,8 @@ class _Analysis:
                 self._region_curve(up, kind, gname, label)
         for c, name in self.parsed.owner.items():
             if not [s for s in self.info.adjacent.get(c, []) if s in self.region or s in self.cell_of]:
-                self.problems.append(f"curve {c} of group '{name}' bounds no fluid, gel or cell surface")
+                self.problems.append(f"{self.facet_word} {c} of group '{name}' bounds no fluid, gel or cell "
+                                     f"{self.region_word}")
 
     def _cell_curve(self, c: int, up: list, cells_here: list, kind, gname, label: str) -> None:
         sides = {self.region.get(s, "cell") for s in up}
@@ -120,7 +124,8 @@ class _Analysis:
         else:
             self.problems.append(f"cell '{name}': its boundary {label} is not in the gel"
                                  + (f" (it is in '{gname}')" if gname else "")
-                                 + ": only a symmetry line may cut a cell")
+                                 + f": only a symmetry {'plane' if self.info.dimension == 3 else 'line'} may "
+                                   f"cut a cell")
 
     def _region_curve(self, up: list, kind, gname, label: str) -> None:
         sides = {self.region[s] for s in up}
@@ -136,8 +141,8 @@ class _Analysis:
                 self.problems.append(f"{label} of group '{gname}' lies inside the {side}, not on its boundary")
         elif kind == "interface":
             self.problems.append(f"interface '{gname}': {label} bounds only the {side}: the fluid and gel sides "
-                                 f"do not share nodes (draw one curve shared by both surfaces, e.g. with "
-                                 f"BooleanFragments or Coherence)")
+                                 f"do not share nodes (draw one {self.facet_word} shared by both "
+                                 f"{self.region_word}s, e.g. with BooleanFragments or Coherence)")
         elif kind is None:
             allowed = "inlet, outlet, wall or symmetry" if side == "fluid" else "held or symmetry"
             self.problems.append(f"{label} bounds the {side} but is in no physical group: name it one of "
@@ -153,51 +158,56 @@ class _Analysis:
         """Every fluid region has an outlet or an interface; returns whether some fluid is enclosed."""
         outlets, ifaces = self.curves_of("outlet"), self.curves_of("interface")
         if not outlets:
-            self.problems.append("no physical curve 'outlet': the pressure is undetermined (give at least one "
-                                 "outlet, where the traction is zero)")
+            self.problems.append(f"no physical {self.facet_word} 'outlet': the pressure is undetermined (give at "
+                                 f"least one outlet, where the traction is zero)")
         enclosed = False
         for comp in connected_surfaces(sorted(self.fluid), self.info):
             touching = {c for c, up in self.info.adjacent.items() if set(up) & comp}
             if not touching & outlets:
                 enclosed = True
                 if not touching & ifaces:
-                    self.problems.append(f"the fluid region of surface(s) {sorted(comp)} has no outlet and no "
-                                         f"fluid-gel interface: it is enclosed and nothing fixes its pressure")
+                    self.problems.append(f"the fluid region of {self.region_word}(s) {sorted(comp)} has no outlet "
+                                         f"and no fluid-gel interface: it is enclosed and nothing fixes its pressure")
         return enclosed
 
     def network_anchored(self) -> None:
         """An inlet and an interface exist; every part of the gel is held, or on symmetry lines both ways."""
+        facet = self.facet_word
         if not self.parsed.curves["inlet"]:
-            self.problems.append("no physical curve 'inlet': nothing drives the flow")
+            self.problems.append(f"no physical {facet} 'inlet': nothing drives the flow")
         if not self.parsed.curves["held"]:
-            self.problems.append("no physical curve 'held': the gel's network is anchored nowhere (name the gel "
-                                 "boundaries where v_f = 0 and u_s = 0 'held')")
+            self.problems.append(f"no physical {facet} 'held': the gel's network is anchored nowhere (name the gel "
+                                 f"boundaries where v_f = 0 and u_s = 0 'held')")
         else:
-            held, scale = self.curves_of("held"), self.info.scale
-            directions = {}
-            for c in self.curves_of("symmetry"):
-                p = self.info.curve_points[c]
-                directions[c] = "h" if abs(p[0, 1] - p[-1, 1]) <= 1e-9 * scale else "v"
+            held = self.curves_of("held")
+            directions = {c: self.symmetry_normal(c) for c in self.curves_of("symmetry")}
             for comp in connected_surfaces(sorted(self.gel), self.info):
                 touching = {c for c, up in self.info.adjacent.items() if set(up) & comp}
-                if not touching & held and {directions[c] for c in touching if c in directions} != {"h", "v"}:
-                    self.problems.append(f"the gel region of surface(s) {sorted(comp)} touches no 'held' curve: "
-                                         f"its network is anchored nowhere (rigid-body motion)")
+                normals = {directions[c] for c in touching if c in directions}
+                if not touching & held and not set(range(self.info.dimension)) <= normals:
+                    self.problems.append(f"the gel region of {self.region_word}(s) {sorted(comp)} touches no "
+                                         f"'held' {facet}: its network is anchored nowhere (rigid-body motion)")
         if not self.parsed.curves["interface"]:
-            self.problems.append("no physical curve 'interface': the fluid and the gel must share at least one "
-                                 "interface")
+            self.problems.append(f"no physical {facet} 'interface': the fluid and the gel must share at least one "
+                                 f"interface")
+
+    def symmetry_normal(self, c: int):
+        """The axis normal to an axis-aligned straight symmetry curve (0: x = const, 1: y = const), else None."""
+        p, scale = self.info.curve_points[c], self.info.scale
+        return 1 if abs(p[0, 1] - p[-1, 1]) <= 1e-9 * scale else 0
 
     def cell_boundary_groups(self) -> None:
         """A ``cell[_K]_boundary`` group given by the user must be that cell's boundary."""
         for name, k, ents in self.parsed.cell_boundaries:
             k = k or 1
             if k > len(self.parsed.cells):
-                self.problems.append(f"physical curve '{name}': there is no cell {k}")
+                self.problems.append(f"physical {self.facet_word} '{name}': there is no cell {k}")
                 continue
             expected = set(self.gamma2.get(k, []))        # a flat edge on a symmetry line is 'symmetry'
             if set(ents) != expected:
-                self.problems.append(f"physical curve '{name}' = curves {sorted(ents)} is not the boundary of "
-                                     f"'{self.cell_names[k]}' (curves {sorted(expected)})")
+                self.problems.append(f"physical {self.facet_word} '{name}' = {self.facet_word}s {sorted(ents)} is "
+                                     f"not the boundary of '{self.cell_names[k]}' ({self.facet_word}s "
+                                     f"{sorted(expected)})")
 
     # -- conditions ------------------------------------------------------------------------------------
     def inlets(self) -> list:
@@ -295,6 +305,9 @@ def _analyse(info: GeometryInfo) -> FileLayout:
     _check_mesh_kind(info, source)
     problems: list[str] = []
     parsed = parse_groups(info, problems)
+    if info.dimension == 3:
+        from gelcell.geometry.files.analyse3d import analyse_volumes
+        return analyse_volumes(info, parsed, source, problems)
     a = _Analysis(info, parsed, source)
     a.problems += problems
     a.stop_if_wrong()
