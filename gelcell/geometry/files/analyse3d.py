@@ -252,7 +252,7 @@ def _cell_gaps(a: _Analysis3D, k: int, name: str, ents: list, problems: list) ->
             problems.append(f"cell '{name}' touches the boundary '{gname}' {where(info.curve_points[s])} (gap "
                             f"{0.0 if shared else gaps[s]:.3g}): a cell must lie inside the gel with a gap to its "
                             f"boundaries")
-    for j, (other, _, other_ents) in enumerate(a.parsed.cells[: k - 1], start=1):
+    for j, (other, _, _) in enumerate(a.parsed.cells[: k - 1], start=1):
         theirs = set(a.gamma2.get(j, []) + a.cut.get(j, []))
         if edges & {e for c in theirs for e in info.curve_ends[c]} or min(
                 (gaps.get(s, np.inf) for s in theirs), default=np.inf) <= tol:

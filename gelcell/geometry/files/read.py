@@ -100,9 +100,10 @@ def _read_with_gmsh(path: str) -> GeometryInfo:
 
 
 def reference_elements(path: str) -> float | None:
-    """The triangles (tetrahedra: a file with volumes) of the file at ``--mesh-size 1`` (a ``.geo`` file's predicted from coarse probe meshes:
-    :func:`gelcell.geometry.files.worker.reference_elements`), cached per file version; None if gmsh
-    crashed making the probes (the mesh itself is still bounded in its child process)."""
+    """The triangles (tetrahedra: a file with volumes) of the file at ``--mesh-size 1`` (a ``.geo``
+    file's predicted from coarse probe meshes: :func:`gelcell.geometry.files.worker.reference_elements`),
+    cached per file version; None if gmsh crashed making the probes (the mesh itself is still bounded
+    in its child process)."""
     read_geometry(path)
     key = file_version(path)
     if key not in _ESTIMATES:
