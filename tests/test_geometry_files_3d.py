@@ -48,16 +48,9 @@ def _owned_nodes(f) -> tuple[np.ndarray, np.ndarray]:
     return np.vstack(COMM.allgather(x)), np.vstack(COMM.allgather(values))
 
 
-def slab_minus_plane(mesh_size: float, planar_file: str | None = None) -> dict[str, tuple[float, float]]:
+def _difference(slab, plane) -> dict[str, tuple[float, float]]:
     """Per field: the RMS over the planar device's nodes of |slab - plane| / RMS |plane|, the slab
-    evaluated at mid-depth, and the same for the slab's z component.  The planar device: the built-in
-    shear device with its cell, or ``planar_file``."""
-    if planar_file is None:
-        planar = CaseParameters.default("shear", with_cell=True).with_mesh_size(mesh_size).with_kinematics("small")
-    else:
-        planar = file_case(planar_file, mesh_size)
-    plane = solve_partitioned(planar, verbose=False, checks=False).fields
-    slab = solve_partitioned(file_case(SLAB, mesh_size), verbose=False, checks=False).fields
+    evaluated at mid-depth, and the same for the slab's z component."""
     out = {}
     for name in FIELDS:
         x, planar_values = _owned_nodes(getattr(plane, name))
@@ -74,16 +67,35 @@ def slab_minus_plane(mesh_size: float, planar_file: str | None = None) -> dict[s
     return out
 
 
+def slab_minus_plane(mesh_size: float) -> dict[str, dict[str, tuple[float, float]]]:
+    """:func:`_difference` of the slab file and the planar shear device with its cell, as the file
+    ``examples/devices/shear.geo`` (``"file"``: the slab's floor mesh) and built in (``"builtin"``)."""
+    slab = solve_partitioned(file_case(SLAB, mesh_size), verbose=False, checks=False).fields
+    planar = {"file": file_case(PLANE, mesh_size),
+              "builtin": CaseParameters.default("shear", with_cell=True).with_mesh_size(mesh_size)
+              .with_kinematics("small")}
+    return {key: _difference(slab, solve_partitioned(p, verbose=False, checks=False).fields)
+            for key, p in planar.items()}
+
+
 def test_slab_file_with_a_cylindrical_cell_equals_the_planar_device():
-    """The slab file against the planar shear device with its circular cell, at size factors 4 and 2:
+    """The slab file against the planar shear device with its circular cell, at size factors 6 and 4:
     slab - plane is the difference of two discretisations of one solution, so it shrinks in every
-    field (the cell's displacement too), and the slab's z components are no larger than it."""
-    coarse, fine = slab_minus_plane(4.0), slab_minus_plane(2.0)
+    field (the cell's displacement too), and the slab's z components are no larger than it.
+
+    Asserted against the device as the file shear.geo, whose mesh is the floor of the slab's (so the
+    difference is the 3D discretisation's alone).  Against the built-in device (printed) the planar
+    meshes differ as well, and slab - plane is then that of the two planar meshes (built-in - file
+    in 2D), which does not shrink monotonically from 6 to 4 in the fluid (it does from 4 to 2)."""
+    coarse, fine = slab_minus_plane(6.0), slab_minus_plane(4.0)
+    for key in coarse:
+        for name in FIELDS:
+            (c, cz), (f, fz) = coarse[key][name], fine[key][name]
+            print(f"{key} {name}: slab - plane {c:.2e} -> {f:.2e}, z component {cz:.1e} -> {fz:.1e}")
     for name in FIELDS:
-        print(f"{name}: slab - plane {coarse[name][0]:.2e} -> {fine[name][0]:.2e}, "
-              f"z component {coarse[name][1]:.1e} -> {fine[name][1]:.1e}")
-        assert fine[name][0] < coarse[name][0], name
-        assert fine[name][1] <= 2 * max(fine[name][0], coarse[name][1]), name
+        (c, cz), (f, fz) = coarse["file"][name], fine["file"][name]
+        assert f < c, name
+        assert fz <= 2 * max(f, cz), name
 
 
 # --------------------------------------------------------------------------- refused before meshing
