@@ -3,7 +3,7 @@
 The regions are volumes (``fluid``, ``gel``, ``cell``/``cell_K``) and the
 conditions are on surfaces (``inlet``, ``outlet``, ``wall``, ``held``,
 ``symmetry``, ``interface``): the checks of
-:mod:`~gelcell.geometry.files.analyse` that carry over (every name known and
+:mod:`~gelcell.geometry.files.steps` that carry over (every name known and
 present, every boundary surface in a group, interfaces shared by the fluid
 and the gel, the pressure fixed, the network anchored) run on the file's
 surfaces and volumes as they do on curves and surfaces.  What differs:
@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gelcell.geometry.files.analyse import FileLayout, _Analysis, _curve_tags
+from gelcell.geometry.files.steps import Analysis, FileLayout, boundary_tags
 from gelcell.geometry.files.names import ParsedGroups
 from gelcell.geometry.files.read import GeometryInfo
 from gelcell.geometry.files.shapes import TOUCH, where
@@ -101,7 +101,7 @@ def normal_axis(normal: np.ndarray) -> int | None:
     return k if abs(abs(normal[k]) - 1.0) <= 1e-9 else None
 
 
-class _Analysis3D(_Analysis):
+class _Analysis3D(Analysis):
     """The steps of :func:`analyse_volumes`: those of the planar analysis on surfaces and volumes, and
     the 3D forms of the symmetry planes, the inlets and the cells."""
 
@@ -313,7 +313,7 @@ def analyse_volumes(info: GeometryInfo, parsed: ParsedGroups, source: str, probl
     inflow = a.inlets()
     sym_tags = a.symmetry_tags()
     a.stop_if_wrong()
-    curve_tags, fluid_interfaces = _curve_tags(a, inflow, sym_tags)
+    curve_tags, fluid_interfaces = boundary_tags(a, inflow, sym_tags)
     cell_fixed = a.cell_symmetry_tags(curve_tags)
     surface_tags = {int(Tag.FLUID): (sorted(a.fluid), "fluid"), int(Tag.GEL): (sorted(a.gel), "gel")}
     for k, (name, _, ents) in enumerate(parsed.cells, start=1):
