@@ -178,3 +178,39 @@ def test_slab_file_reads_its_convention():
     y, z = np.meshgrid(np.linspace(0, 0.2, 5), np.linspace(0, HEIGHT, 3))
     x = np.vstack([np.zeros(y.size), y.ravel(), z.ravel()])
     assert np.allclose(inflow(x), [4 * x[1] * (0.2 - x[1]) / 0.04, 0 * x[1], 0 * x[1]], atol=1e-14)
+
+
+# --------------------------------------------------------------------------- a chip's lower half
+CHIP = os.path.join(HERE, "geometry_files", "chip3d.geo")
+
+
+def test_parabolic_inlet_of_a_half_channel_is_the_duct_series():
+    """The chip file's inlet (walls y = 0, W and the floor z = 0, the symmetry plane z = 0.2 above):
+    the profile of the whole duct W x 0.4 on its lower half, which is the built-in 3D device's
+    ChipInflow("duct") (the rectangular-duct series, maximum 1 on the centre line), and its sphere."""
+    from gelcell.geometry.describe import device_layout
+    from gelcell.geometry.layout import ChipInflow
+    layout = device_layout(described(file_case(CHIP)))
+    inflow = layout.boundaries.fluid_velocity[0][1]
+    y, z = np.meshgrid(np.linspace(0, 0.2, 9), np.linspace(0, 0.2, 7))
+    x = np.vstack([np.zeros(y.size), y.ravel(), z.ravel()])
+    assert np.allclose(inflow(x), ChipInflow("duct", 0.2, 0.4)(x), rtol=0, atol=1e-13)
+    (cell,) = layout.cells
+    assert cell.centre == pytest.approx((1.0, -0.15, 0.1), abs=1e-9) and cell.symmetry == ()
+    assert cell.diameter == pytest.approx(0.06, rel=1e-6)
+
+
+def test_chip_file_partitioned_equals_monolithic():
+    """A 3D file device with a duct inflow, a bonded floor, a mid-height symmetry plane and a
+    spherical cell: the partitioned fields (coupled to 1e-10) equal the monolithic reference's
+    (the same discrete problem) to 1e-6 relative."""
+    from gelcell.post.fields import relative_differences
+    from gelcell.run.solve import solve_monolithic
+    p = file_case(CHIP)
+    part = solve_partitioned(p, verbose=False, checks=False)
+    mono = solve_monolithic(p, checks=False)
+    differences = relative_differences(part.fields, mono.fields)
+    print(", ".join(f"{k} {v:.1e}" for k, v in differences.items()))
+    assert part.summary["coupling"]["converged"]
+    assert max(differences.values()) <= 1e-6, differences
+    assert len(part.summary["cell"]["centroid_displacement"]) == 3
