@@ -214,3 +214,13 @@ def test_chip_file_partitioned_equals_monolithic():
     assert part.summary["coupling"]["converged"]
     assert max(differences.values()) <= 1e-6, differences
     assert len(part.summary["cell"]["centroid_displacement"]) == 3
+
+
+def test_same_3d_file_device_on_one_and_two_ranks():
+    """The chip file: the summary's quantities and the coupling iterations on 1 and 2 ranks."""
+    from mpi_run import run_mpi
+    args = [CHIP, "1", "small"]
+    serial, parallel = run_mpi("file_summary.py", 1, args), run_mpi("file_summary.py", 2, args)
+    assert serial["iterations"] == parallel["iterations"]
+    for key, value in serial.items():
+        assert parallel[key] == pytest.approx(value, rel=1e-8, abs=1e-14), key
