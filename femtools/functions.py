@@ -73,7 +73,8 @@ def values_at_points(u: fem.Function, points: np.ndarray) -> np.ndarray:
     colliding = geometry.compute_colliding_cells(msh, geometry.compute_collisions(tree, x), x)
     cells = np.array([c[0] if len(c) else -1 for c in (colliding.links(i) for i in range(len(x)))], dtype=np.int32)
     size = int(np.prod(u.ufl_shape))
-    owner = comm.allreduce(np.where(cells >= 0, comm.rank, comm.size), op=MPI.MIN)
+    owner = np.empty(len(x), dtype=np.int64)      # (a buffer reduction: the pickled MIN cannot take arrays)
+    comm.Allreduce(np.where(cells >= 0, comm.rank, comm.size).astype(np.int64), owner, op=MPI.MIN)
     mine = (owner == comm.rank) & (cells >= 0)
     values = np.zeros((len(x), size))
     if mine.any():

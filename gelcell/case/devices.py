@@ -375,6 +375,7 @@ class FileContents:
     cells: tuple = ()              #: ((x, y, d), ...): centre and diameter of each cell, units of L0
     gel_depth: float = 0.0         #: the gel's area over the fluid-gel interfaces' length
     enclosed_fluid: bool = False   #: some fluid region has no outlet (fixed only through an interface)
+    dimension: int = 2             #: 3: the file's regions are volumes (a 3D device)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -412,6 +413,11 @@ class FileGeometry:
     def min_cell_diameter(self) -> float:
         cells = self.cell_list()
         return min(c[2] for c in cells) if cells else _NO_CELL_DIAMETER
+
+    @property
+    def dimension(self) -> int:
+        """2 for a planar file, 3 for one of volumes (known once the file is read)."""
+        return 2 if self.contents is None else self.contents.dimension
 
     @property
     def e(self):

@@ -29,6 +29,7 @@ def described(params: CaseParameters) -> CaseParameters:
     if params.case != "file" or params.geometry.contents is not None:
         return params
     found = analyse(params.geometry.file)
-    contents = FileContents(cells=tuple((*c.centre, c.diameter) for c in found.layout.cells),
-                            gel_depth=found.gel_depth, enclosed_fluid=found.enclosed_fluid)
+    contents = FileContents(cells=tuple((c.centre[0], c.centre[1], c.diameter) for c in found.layout.cells),
+                            gel_depth=found.gel_depth, enclosed_fluid=found.enclosed_fluid,
+                            dimension=found.dimension)
     return params.replace(geometry=dataclasses.replace(params.geometry, contents=contents))

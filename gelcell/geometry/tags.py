@@ -37,6 +37,9 @@ class Tag(enum.IntEnum):
     CELL_SYMMETRY_X = 19   #: geometry files: symmetry line x = const of a cell
     FLOOR = 41             #: 3D devices: the floor z = 0 (a wall, or a symmetry plane in the slab)
     SYMMETRY_MID = 42      #: 3D devices: the mid-height symmetry plane z = H/2, incl. the cells' flat faces
+    FLUID_SYMMETRY_Z = 43  #: 3D geometry files: symmetry plane z = const of the fluid (V_z = 0)
+    GEL_SYMMETRY_Z = 44    #: 3D geometry files: symmetry plane z = const of the gel
+    CELL_SYMMETRY_Z = 45   #: 3D geometry files: symmetry plane z = const of a cell
 
 
 #: region name -> cell tag

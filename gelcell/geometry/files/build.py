@@ -27,13 +27,14 @@ def mesh_file(params) -> dict:
     """The arrays of :class:`femtools.mesh.ModelArrays` of the file's device, meshed in a child process.
 
     The file is checked (:func:`~gelcell.geometry.files.analyse.analyse`), re-tagged with gelcell's
-    tags and meshed with curved P2 triangles (a ``.geo`` file with its sizes times
+    tags and meshed with curved P2 triangles or tetrahedra (a ``.geo`` file with its sizes times
     ``mesh.size_factor``) by :func:`gelcell.geometry.files.worker.mesh`.
     """
     path = os.path.abspath(params.geometry.file)
     fl = analyse(path)
     version = msh_version(path) if path.lower().endswith(".msh") else None
-    request = {"op": "mesh", "path": path, "msh_version": version, "surface_tags": fl.surface_tags,
+    request = {"op": "mesh", "path": path, "msh_version": version, "dimension": fl.dimension,
+               "surface_tags": fl.surface_tags,
                "curve_tags": fl.curve_tags, "size_factor": params.mesh.size_factor}
     return run_worker(request, path, "meshing")
 

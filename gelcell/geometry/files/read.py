@@ -20,15 +20,26 @@ from gelcell.errors import ParameterError
 from gelcell.geometry.files.child import run_worker
 from gelcell.geometry.files.screen import check_geo_statements
 
-__all__ = ["GeometryInfo", "ELEMENT_TYPES", "read_geometry", "reference_elements", "file_version", "msh_version"]
+__all__ = ["GeometryInfo", "ELEMENT_TYPES", "read_geometry", "reference_elements", "estimated_elements",
+           "file_version", "msh_version"]
 
-#: gmsh element types gelcell takes from a .msh file: points, 2- and 3-node lines, 3- and 6-node triangles
-ELEMENT_TYPES = {15: "point", 1: "2-node line", 8: "3-node line", 2: "3-node triangle", 9: "6-node triangle"}
+#: gmsh element types gelcell takes from a .msh file: points, 2- and 3-node lines, 3- and 6-node triangles,
+#: 4- and 10-node tetrahedra (a file with volumes)
+ELEMENT_TYPES = {15: "point", 1: "2-node line", 8: "3-node line", 2: "3-node triangle", 9: "6-node triangle",
+                 4: "4-node tetrahedron", 11: "10-node tetrahedron"}
 
 
 @dataclasses.dataclass
 class GeometryInfo:
-    """What the checks and the layout need from a geometry file (plain data, the same on every rank)."""
+    """What the checks and the layout need from a geometry file (plain data, the same on every rank).
+
+    In a file with volumes (``dimension`` 3) the surfaces take the curves' part and the volumes
+    the surfaces': ``adjacent`` is surface -> [volumes], ``curve_points`` surface -> (N, 3)
+    points on it, ``curve_ends`` surface -> [its boundary curves], ``surface_polygons`` volume ->
+    [] (the volumes); ``solid`` holds what only the 3D checks need: ``edge_points`` (curve ->
+    (N, 3) samples), ``edge_facets`` (curve -> [surfaces]), ``sizes`` ((dim, tag) -> (area or
+    volume, centroid)), ``gaps`` (volume of a ``cell*`` group -> {surface: distance}).
+    """
 
     path: str
     groups: list            #: (dim, name, [entities])
@@ -40,6 +51,8 @@ class GeometryInfo:
     max_dim: int
     element_order: int
     scale: float
+    dimension: int = 2      #: 3 for a file with volumes
+    solid: dict | None = None
 
 
 # --------------------------------------------------------------------------- reading
@@ -87,9 +100,10 @@ def _read_with_gmsh(path: str) -> GeometryInfo:
 
 
 def reference_elements(path: str) -> float | None:
-    """The triangles of the file at ``--mesh-size 1`` (a ``.geo`` file's predicted from coarse probe meshes:
-    :func:`gelcell.geometry.files.worker.reference_elements`), cached per file version; None if gmsh
-    crashed making the probes (the mesh itself is still bounded in its child process)."""
+    """The triangles (tetrahedra: a file with volumes) of the file at ``--mesh-size 1`` (a ``.geo``
+    file's predicted from coarse probe meshes: :func:`gelcell.geometry.files.worker.reference_elements`),
+    cached per file version; None if gmsh crashed making the probes (the mesh itself is still bounded
+    in its child process)."""
     read_geometry(path)
     key = file_version(path)
     if key not in _ESTIMATES:
@@ -100,6 +114,13 @@ def reference_elements(path: str) -> float | None:
         except ParameterError:
             _ESTIMATES[key] = None
     return _ESTIMATES[key]
+
+
+def estimated_elements(path: str, size_factor: float) -> float | None:
+    """The cells of the file's mesh at ``--mesh-size size_factor``: :func:`reference_elements` over the
+    size factor squared (triangles) or cubed (tetrahedra); None where that is."""
+    reference = reference_elements(path)
+    return None if reference is None else reference / size_factor ** read_geometry(path).dimension
 
 
 def read_geometry(path: str) -> GeometryInfo:

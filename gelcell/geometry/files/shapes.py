@@ -103,5 +103,5 @@ def distance_to_polyline(points: np.ndarray, polyline: np.ndarray) -> float:
 
 
 def where(points: np.ndarray) -> str:
-    m = points[len(points) // 2]
-    return f"near ({m[0]:.4g}, {m[1]:.4g})"
+    m = points[len(points) // 2] if points.shape[1] == 2 else points.mean(axis=0)
+    return "near (" + ", ".join(f"{v:.4g}" for v in m) + ")"

@@ -9,13 +9,13 @@ The parent side, with the time and memory bounds and the signals, is
 * ``{"op": "read", "path", "msh_version"}`` (``msh_version``: None for a
   ``.geo`` file; an MSH 2 file gets its topology from ``createTopology``): the physical groups and topology of the
   file (the fields of :class:`~gelcell.geometry.files.read.GeometryInfo`);
-* ``{"op": "estimate", "path", "msh_version"}``: the triangles of the file at
-  ``--mesh-size 1`` (a ``.geo`` file's from coarse probe meshes, see
+* ``{"op": "estimate", "path", "msh_version"}``: the triangles (tetrahedra in
+  a file with volumes) of the file at ``--mesh-size 1`` (a ``.geo`` file's from coarse probe meshes, see
   :func:`reference_elements`), once the file is known to be valid (probe
   meshes of a broken file can crash gmsh);
-* ``{"op": "mesh", "path", "msh_version", "surface_tags", "curve_tags", "size_factor"}``: the
-  file re-tagged with gelcell's tags and meshed with
-  curved P2 triangles, as the arrays of
+* ``{"op": "mesh", "path", "msh_version", "dimension", "surface_tags", "curve_tags", "size_factor"}``:
+  the file re-tagged with gelcell's tags (on its regions of ``dimension`` 2 or 3 and their
+  boundaries) and meshed with curved P2 triangles or tetrahedra, as the arrays of
   :class:`femtools.mesh.ModelArrays`.
 
 It imports gmsh and numpy only (no gelcell, no MPI, no dolfinx).
@@ -32,8 +32,8 @@ import sys
 import numpy as np
 
 #: gmsh element types gelcell takes (the keys of gelcell.geometry.files.read.ELEMENT_TYPES: this
-#: script imports nothing of gelcell, so that it starts fast)
-ELEMENT_TYPES = (15, 1, 8, 2, 9)
+#: script imports nothing of gelcell, so that it starts fast): points, lines, triangles, tetrahedra
+ELEMENT_TYPES = (15, 1, 8, 2, 9, 4, 11)
 
 #: a probe mesh with at least this many triangles predicts the element count (see reference_elements)
 PROBE_ELEMENTS = 1000
@@ -81,15 +81,15 @@ def _open(gmsh, path: str, msh_version: str | None) -> None:
 
 
 # --------------------------------------------------------------------------- read
-def _samples(gmsh, curve: int, n: int = 64, from_mesh: bool = False) -> np.ndarray:
-    """Points along a curve in order: from its parametrisation, or (``from_mesh``, a .msh file's
-    discrete curve) its mesh nodes ordered by walking its line elements."""
+def _samples(gmsh, curve: int, n: int = 64, from_mesh: bool = False, gdim: int = 2) -> np.ndarray:
+    """Points (their first ``gdim`` coordinates) along a curve in order: from its parametrisation,
+    or (``from_mesh``, a .msh file's discrete curve) its mesh nodes ordered by walking its line elements."""
     if not from_mesh:
         lo, hi = gmsh.model.getParametrizationBounds(1, curve)
         t = np.linspace(lo[0], hi[0], n)
-        return np.asarray(gmsh.model.getValue(1, curve, t)).reshape(-1, 3)[:, :2]
+        return np.asarray(gmsh.model.getValue(1, curve, t)).reshape(-1, 3)[:, :gdim]
     tags, coords, _ = gmsh.model.mesh.getNodes(1, curve, includeBoundary=True)
-    x = np.asarray(coords).reshape(-1, 3)[:, :2]
+    x = np.asarray(coords).reshape(-1, 3)[:, :gdim]
     if x.shape[0] < 2:
         return x
     # order the nodes by walking the curve's line elements
@@ -146,20 +146,27 @@ def _loops(gmsh, surface: int, points: dict) -> list:
     return loops
 
 
-def _element_count(gmsh) -> int:
-    return sum(len(t) for t in gmsh.model.mesh.getElements(2)[1])
+def _element_count(gmsh, dim: int = 2) -> int:
+    return sum(len(t) for t in gmsh.model.mesh.getElements(dim)[1])
+
+
+def _model_dimension(gmsh) -> int:
+    """3 if the model has volumes, else 2."""
+    return 3 if gmsh.model.getEntities(3) else 2
 
 
 def reference_elements(gmsh) -> float:
-    """The number of triangles the file's own sizes make (``--mesh-size 1``), predicted without making them.
+    """The number of cells (triangles; tetrahedra in a file with volumes) the file's own sizes make
+    (``--mesh-size 1``), predicted without making them.
 
     Probe meshes are made at size factors 1024, 256, ... times the file's
     (each about 16 times finer than the one before) until one has
-    :data:`PROBE_ELEMENTS` triangles; the count of a mesh scales as the
-    inverse square of its size factor, so that probe predicts the count at
-    factor 1 (a mesh of fewer triangles at factor 1 is counted exactly).
+    :data:`PROBE_ELEMENTS` cells; the count of a mesh scales as the
+    inverse square (2D) or cube (3D) of its size factor, so that probe predicts the count at
+    factor 1 (a mesh of fewer cells at factor 1 is counted exactly).
     0 if no probe could be meshed.  The model is left unmeshed.
     """
+    dim = _model_dimension(gmsh)
     base = gmsh.option.getNumber("Mesh.MeshSizeFactor")
     order = gmsh.option.getNumber("Mesh.ElementOrder")
     gmsh.option.setNumber("Mesh.ElementOrder", 1)
@@ -169,11 +176,11 @@ def reference_elements(gmsh) -> float:
             gmsh.option.setNumber("Mesh.MeshSizeFactor", base * scale)
             gmsh.model.mesh.clear()
             try:
-                gmsh.model.mesh.generate(2)
+                gmsh.model.mesh.generate(dim)
             except Exception:
                 continue               # too coarse for a small feature: try finer
-            n = _element_count(gmsh)
-            estimate = float(n) * scale * scale
+            n = _element_count(gmsh, dim)
+            estimate = float(n) * scale ** dim
             if n >= PROBE_ELEMENTS:
                 break
     finally:
@@ -181,6 +188,103 @@ def reference_elements(gmsh) -> float:
         gmsh.option.setNumber("Mesh.MeshSizeFactor", base)
         gmsh.option.setNumber("Mesh.ElementOrder", order)
     return estimate
+
+
+# --------------------------------------------------------------------------- read: volumes (3D)
+def _surface_samples(gmsh, surface: int, edge_points: dict, from_mesh: bool, n: int = 15) -> np.ndarray:
+    """Points on a surface: its boundary curves' samples and an n x n grid of its parametrisation
+    (the points inside its trimmed domain), or (``from_mesh``) its mesh nodes."""
+    if from_mesh:
+        _, coords, _ = gmsh.model.mesh.getNodes(2, surface, includeBoundary=True)
+        return np.asarray(coords).reshape(-1, 3)
+    edges = [edge_points[abs(c)] for _, c in gmsh.model.getBoundary([(2, surface)], combined=False, oriented=False)]
+    inner = []
+    try:
+        lo, hi = gmsh.model.getParametrizationBounds(2, surface)
+        u, v = np.meshgrid(np.linspace(lo[0], hi[0], n + 2)[1:-1], np.linspace(lo[1], hi[1], n + 2)[1:-1])
+        for uv in np.column_stack([u.ravel(), v.ravel()]):
+            if gmsh.model.isInside(2, surface, list(uv)):
+                inner.append(np.asarray(gmsh.model.getValue(2, surface, list(uv)))[:3])
+    except Exception:
+        pass                           # a surface without a parametrisation: its boundary samples only
+    return np.vstack(edges + ([np.asarray(inner)] if inner else []))
+
+
+def _mesh_measures(gmsh, dim: int, tag: int):
+    """Size (area, volume) and centroid of an entity from its linear mesh elements (a .msh file)."""
+    types, _, nodes = gmsh.model.mesh.getElements(dim, tag)
+    node_tags, coords, _ = gmsh.model.mesh.getNodes()
+    index = {int(t): i for i, t in enumerate(node_tags)}
+    x = np.asarray(coords).reshape(-1, 3)
+    size, moment = 0.0, np.zeros(3)
+    for et, nd in zip(types, nodes):
+        k = gmsh.model.mesh.getElementProperties(et)[3]
+        corners = x[[index[int(t)] for t in np.asarray(nd)]].reshape(-1, k, 3)[:, : dim + 1]
+        edges = corners[:, 1:] - corners[:, :1]
+        if dim == 3:
+            m = np.abs(np.einsum("ij,ij->i", edges[:, 0], np.cross(edges[:, 1], edges[:, 2]))) / 6
+        else:
+            m = 0.5 * np.linalg.norm(np.cross(edges[:, 0], edges[:, 1]), axis=1)
+        size += float(m.sum())
+        moment += (m[:, None] * corners.mean(axis=1)).sum(axis=0)
+    return size, (moment / size if size else moment)
+
+
+def _measures(gmsh, dim: int, tag: int, from_mesh: bool):
+    """Size and centroid of an entity: OpenCASCADE's, else its mesh's (a .msh file, or a probe mesh)."""
+    if not from_mesh:
+        try:
+            return float(gmsh.model.occ.getMass(dim, tag)), np.asarray(gmsh.model.occ.getCenterOfMass(dim, tag))
+        except Exception:
+            pass                       # the built-in kernel: no masses
+    return _mesh_measures(gmsh, dim, tag)
+
+
+def _gaps(groups: list, facet_points: dict, facets_of: dict) -> dict:
+    """For every volume of a ``cell*`` group: surface -> the smallest distance between the samples of
+    the volume's boundary and those of that surface (the surfaces not bounding it): a sampled
+    estimate (a touching cell shares a curve or a point with the surface, which the checks find)."""
+    gaps = {}
+    cells = {v for dim, name, ents in groups if dim == 3 and name.strip().startswith("cell") for v in ents}
+    for v in sorted(cells):
+        own = set(facets_of[v])
+        pts = np.vstack([facet_points[s] for s in own])
+        gaps[v] = {s: float(np.linalg.norm(pts[:, None, :] - q[None, :, :], axis=2).min())
+                   for s, q in facet_points.items() if s not in own and len(q)}
+    return gaps
+
+
+def _read_volumes(gmsh, groups: list, is_mesh: bool) -> dict:
+    """The GeometryInfo fields of a file with volumes: its surfaces play the 2D curves' part and its
+    volumes the 2D surfaces' (adjacency, samples, boundary entities), plus what the 3D checks need."""
+    edge_points, edge_facets = {}, {}
+    for _, c in gmsh.model.getEntities(1):
+        edge_points[c] = _samples(gmsh, c, from_mesh=is_mesh, gdim=3)
+        edge_facets[c] = [int(s) for s in gmsh.model.getAdjacencies(1, c)[0]]
+    adjacent, points, edges, sizes = {}, {}, {}, {}
+    probe = False
+    for _, s in gmsh.model.getEntities(2):
+        up, down = gmsh.model.getAdjacencies(2, s)
+        adjacent[s] = [int(v) for v in up]
+        edges[s] = [int(c) for c in down]
+        points[s] = _surface_samples(gmsh, s, edge_points, is_mesh)
+    for dim in (2, 3):
+        for _, t in gmsh.model.getEntities(dim):
+            try:
+                sizes[(dim, t)] = _measures(gmsh, dim, t, is_mesh or probe)
+            except Exception:
+                probe = True           # no OpenCASCADE masses: a coarse mesh measures the rest
+                gmsh.option.setNumber("Mesh.MeshSizeFactor", 8 * gmsh.option.getNumber("Mesh.MeshSizeFactor"))
+                gmsh.model.mesh.generate(3)
+                sizes[(dim, t)] = _mesh_measures(gmsh, dim, t)
+    if probe:
+        gmsh.model.mesh.clear()
+    facets_of = {v: [abs(t) for _, t in gmsh.model.getBoundary([(3, v)], combined=False, oriented=False)]
+                 for _, v in gmsh.model.getEntities(3)}
+    return dict(adjacent=adjacent, curve_points=points, curve_ends=edges,
+                surface_polygons={v: [] for _, v in gmsh.model.getEntities(3)},
+                solid=dict(edge_points=edge_points, edge_facets=edge_facets, sizes=sizes, facets_of=facets_of,
+                           gaps=_gaps(groups, points, facets_of)))
 
 
 def read(request: dict) -> dict:
@@ -195,6 +299,15 @@ def read(request: dict) -> dict:
     for dim, tag in gmsh.model.getPhysicalGroups():
         name = gmsh.model.getPhysicalName(dim, tag) or str(tag)
         groups.append((dim, name, [int(e) for e in gmsh.model.getEntitiesForPhysicalGroup(dim, tag)]))
+    types = [int(t) for t in gmsh.model.mesh.getElementTypes()] if is_mesh else []
+    order = int(gmsh.option.getNumber("Mesh.ElementOrder"))
+    if gmsh.option.getNumber("Mesh.RecombineAll"):
+        types.append(3)     # quadrilaterals requested
+    common = dict(groups=groups, element_types=sorted(set(types)), max_dim=max_dim, element_order=order)
+    if max_dim == 3:
+        fields = _read_volumes(gmsh, groups, is_mesh)
+        allpts = np.vstack([p for p in fields["curve_points"].values() if len(p)])
+        return dict(common, **fields, dimension=3, scale=float(np.ptp(allpts, axis=0).max()) or 1.0)
     adjacent, points, ends = {}, {}, {}
     for _, c in gmsh.model.getEntities(1):
         up, down = gmsh.model.getAdjacencies(1, c)
@@ -202,14 +315,10 @@ def read(request: dict) -> dict:
         ends[c] = [int(p) for p in down]
         points[c] = _samples(gmsh, c, from_mesh=is_mesh)
     polygons = {s: _loops(gmsh, s, points) for _, s in gmsh.model.getEntities(2)}
-    types = [int(t) for t in gmsh.model.mesh.getElementTypes()] if is_mesh else []
-    order = int(gmsh.option.getNumber("Mesh.ElementOrder"))
-    if gmsh.option.getNumber("Mesh.RecombineAll"):
-        types.append(3)     # quadrilaterals requested
     allpts = np.vstack([p for p in points.values() if len(p)]) if points else np.zeros((1, 2))
     scale = float(np.ptp(allpts, axis=0).max()) or 1.0
-    return dict(groups=groups, adjacent=adjacent, curve_points=points, curve_ends=ends, surface_polygons=polygons,
-                element_types=sorted(set(types)), max_dim=max_dim, element_order=order, scale=scale)
+    return dict(common, adjacent=adjacent, curve_points=points, curve_ends=ends, surface_polygons=polygons,
+                scale=scale)
 
 
 def estimate(request: dict) -> float:
@@ -217,7 +326,9 @@ def estimate(request: dict) -> float:
     gmsh = _session()
     path = request["path"]
     _open(gmsh, path, request.get("msh_version"))
-    return float(_element_count(gmsh)) if path.lower().endswith(".msh") else reference_elements(gmsh)
+    if path.lower().endswith(".msh"):
+        return float(_element_count(gmsh, _model_dimension(gmsh)))
+    return reference_elements(gmsh)
 
 
 # --------------------------------------------------------------------------- mesh
@@ -261,25 +372,27 @@ def mesh(request: dict) -> dict:
     path = request["path"]
     _open(gmsh, path, request.get("msh_version"))
     is_mesh = path.lower().endswith(".msh")
+    dim = request.get("dimension", 2)      # of the regions; their boundaries are one lower
     gmsh.model.removePhysicalGroups()
     for tag, (surfaces, name) in request["surface_tags"].items():
-        gmsh.model.addPhysicalGroup(2, surfaces, tag)
-        gmsh.model.setPhysicalName(2, tag, name)
+        gmsh.model.addPhysicalGroup(dim, surfaces, tag)
+        gmsh.model.setPhysicalName(dim, tag, name)
     for tag, curves in request["curve_tags"].items():
-        gmsh.model.addPhysicalGroup(1, curves, tag)
+        gmsh.model.addPhysicalGroup(dim - 1, curves, tag)
     if is_mesh:       # (a size factor other than 1 is refused by CaseParameters.validate)
-        if 9 not in _types(gmsh):
+        if (11 if dim == 3 else 9) not in _types(gmsh):
             gmsh.model.mesh.setOrder(2)
     else:
         gmsh.option.setNumber("Mesh.MeshSizeFactor",
                               gmsh.option.getNumber("Mesh.MeshSizeFactor") * request["size_factor"])
         gmsh.option.setNumber("Mesh.ElementOrder", 1)
         gmsh.model.mesh.clear()
-        gmsh.model.mesh.generate(2)
+        gmsh.model.mesh.generate(dim)
         bad = [t for t in _types(gmsh) if t not in ELEMENT_TYPES]
         if bad:
             raise Refused(f"geometry file {path!r}: its mesh options make element type(s) {bad} (gmsh "
-                          f"numbers, e.g. 3 = quadrangle); gelcell takes triangles only (no Recombine)")
+                          f"numbers, e.g. 3 = quadrangle, 6 = prism); gelcell takes triangles and "
+                          f"tetrahedra only (no Recombine)")
         gmsh.model.mesh.setOrder(2)
     gmsh.model.mesh.renumberNodes()
     return _arrays(gmsh.model)
