@@ -224,3 +224,20 @@ def test_same_3d_file_device_on_one_and_two_ranks():
     assert serial["iterations"] == parallel["iterations"]
     for key, value in serial.items():
         assert parallel[key] == pytest.approx(value, rel=1e-8, abs=1e-14), key
+
+
+def test_a_too_fine_3d_file_is_refused_before_meshing():
+    """A file with volumes: the probe count scales as the inverse cube of --mesh-size and the memory by
+    the 3D law, so a fine size is refused with a --mesh-size that fits (checked: it passes)."""
+    from gelcell.geometry.files.read import reference_elements
+    from gelcell.errors import ModelLimitError
+    from gelcell.post.validity import check_file_mesh_size, estimate_file_mesh
+    coarse, fine = (estimate_file_mesh(described(file_case(SLAB, s))) for s in (2.0, 1.0))
+    assert coarse["dimension"] == 3 and fine["elements"] == pytest.approx(8 * coarse["elements"], rel=1e-12)
+    assert fine["elements"] == pytest.approx(reference_elements(SLAB), rel=1e-12)
+    memory = int(2 * fine["memory_bytes"])          # a machine on which mesh-size 1 fits, 0.25 not
+    with pytest.raises(ModelLimitError, match=r"--mesh-size 0.25 would make about") as refused:
+        check_file_mesh_size(described(file_case(SLAB, 0.25)), memory=memory)
+    suggested = float(str(refused.value).split("choose --mesh-size ")[1].split()[0])
+    assert 0.25 < suggested <= 1.0
+    check_file_mesh_size(described(file_case(SLAB, suggested)), memory=memory)

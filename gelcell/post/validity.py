@@ -37,7 +37,7 @@ from gelcell.case import CaseParameters
 from gelcell.errors import ModelLimitError
 from gelcell.geometry import Tag, described
 from gelcell.geometry.builtin import closed_form_measures, closed_form_measures_3d
-from gelcell.geometry.files.read import reference_elements
+from gelcell.geometry.files.read import estimated_elements, read_geometry
 from gelcell.machine import MEMORY_SHARE, machine_memory
 
 __all__ = ["representable_ca", "check_representable", "check_stiffness_ratio",
@@ -263,6 +263,10 @@ def _round_up(size: float) -> float:
     return math.ceil(size / scale - 1e-9) * scale
 
 
+#: the memory law of a geometry file's mesh by its dimension
+_FILE_MEMORY = {2: _memory, 3: _memory_3d}
+
+
 def check_mesh_size(params: CaseParameters, memory: int | None = None) -> dict:
     """Raise :class:`ModelLimitError` if the estimated mesh does not fit in ``memory``."""
     est = estimate_mesh(params)
@@ -289,15 +293,16 @@ def estimate_file_mesh(params: CaseParameters) -> dict:
 
     A ``.msh`` file's count is its own.  For a ``.geo`` file gmsh makes coarse
     probe meshes (:func:`gelcell.geometry.files.read.reference_elements`: the
-    triangles at ``--mesh-size 1``, predicted); the count
-    scales as the inverse square of the size factor.  None if gmsh could not
-    make the probes (the file's meshing is bounded in its child process all the same).
+    triangles or tetrahedra at ``--mesh-size 1``, predicted); the count
+    scales as the inverse square (cube, a file with volumes) of the size factor,
+    and the memory by the 2D or the 3D law.  None if gmsh could not make the
+    probes (the file's meshing is bounded in its child process all the same).
     """
-    reference = reference_elements(params.geometry.file)
-    if reference is None:
-        return {"elements": None, "memory_bytes": None}
-    count = reference / params.mesh.size_factor ** 2
-    return {"elements": count, "memory_bytes": _memory(count)}
+    dim = read_geometry(params.geometry.file).dimension
+    count = estimated_elements(params.geometry.file, params.mesh.size_factor)
+    if count is None:
+        return {"elements": None, "memory_bytes": None, "dimension": dim}
+    return {"elements": count, "memory_bytes": _FILE_MEMORY[dim](count), "dimension": dim}
 
 
 def check_file_mesh_size(params: CaseParameters, memory: int | None = None) -> dict:
@@ -312,14 +317,16 @@ def check_file_mesh_size(params: CaseParameters, memory: int | None = None) -> d
     if params.geometry.file.lower().endswith(".msh"):
         raise ModelLimitError(f"the mesh of geometry file {name} has {need}; this machine has "
                               f"{memory / 2**30:.3g} GiB: mesh the file more coarsely")
-    lo, hi = params.mesh.size_factor, params.mesh.size_factor
-    while _memory(est["elements"] * (lo / hi) ** 2) > budget:
+    law, dim, size = _FILE_MEMORY[est["dimension"]], est["dimension"], params.mesh.size_factor
+    fits = lambda factor: law(est["elements"] * (size / factor) ** dim) <= budget   # noqa: E731
+    lo, hi = size, 2.0 * size
+    while not fits(hi):
         hi *= 2.0
     for _ in range(40):             # bisect for the finest size factor that fits
         mid = math.sqrt(lo * hi)
-        lo, hi = (lo, mid) if _memory(est["elements"] * (params.mesh.size_factor / mid) ** 2) <= budget else (mid, hi)
+        lo, hi = (lo, mid) if fits(mid) else (mid, hi)
     raise ModelLimitError(
-        f"--mesh-size {params.mesh.size_factor:g} would make {need} (estimated from the sizes of geometry file "
+        f"--mesh-size {size:g} would make {need} (estimated from the sizes of geometry file "
         f"{name}); this machine has {memory / 2**30:.3g} GiB: choose --mesh-size {_round_up(hi):g} or larger")
 
 
