@@ -25,6 +25,7 @@ from coupling.acceleration import (IQNILS, IQNIMVJ, Acceleration, AccelerationIn
                                    AitkenRelaxation, ConstantRelaxation, NoAcceleration,
                                    Preconditioner, build_acceleration, qr_filter,
                                    relaxation_prior_diagonal)
+from coupling.coarse_surrogate import CoarseSurrogate
 from coupling.config import (ACCELERATION_OPTIONS, ACCELERATIONS, FILTERS, JACOBIAN_PRIORS, MEASURES,
                              ACCEPTED_VALUES, ON_MAX_ITERATIONS, PRECONDITIONERS, SCHEMES, STATE_RELOADS,
                              AccelerationConfig, ConvergenceMeasureConfig, CouplingConfig,
@@ -46,7 +47,8 @@ from coupling.replay import ReplayResult, replay
 from coupling.schemes import (CouplingScheme, ParallelExplicitScheme, ParallelImplicitScheme,
                               SerialExplicitScheme, SerialImplicitScheme, build_scheme)
 from coupling.serialization import load_npz, save_npz, to_jsonable, write_bytes
-from coupling.surface_mapping import SURFACE_MAPPINGS, surface_interpolation_matrix, surface_mapping_matrix
+from coupling.surface_mapping import (SURFACE_MAPPINGS, surface_interpolation_matrix, surface_mapping_matrix,
+                                      surface_mass_matrix)
 
 __all__ = [
     # participants, data and schemes
@@ -60,13 +62,13 @@ __all__ = [
     # acceleration, convergence, extrapolation
     "Acceleration", "AccelerationInfo", "NoAcceleration", "ConstantRelaxation", "AitkenRelaxation",
     "IQNILS", "IQNIMVJ", "Preconditioner", "build_acceleration", "qr_filter", "relaxation_prior_diagonal",
-    "LinearizedPrior", "coupled_jacobian", "operator_key", "VectorLayout",
+    "LinearizedPrior", "coupled_jacobian", "operator_key", "CoarseSurrogate", "VectorLayout",
     "ConvergenceMeasure", "AbsoluteConvergence", "RelativeConvergence", "ResidualRelativeConvergence",
     "MeasureValue", "build_measure", "measure_type", "MEASURE_ALIASES", "MEASURE_FORMULAS",
     "lagrange_weights",
     # mapping and MPI
     "Mapping", "build_mapping", "order_along_curve", "polyline_interpolation_matrix",
-    "SURFACE_MAPPINGS", "surface_interpolation_matrix", "surface_mapping_matrix",
+    "SURFACE_MAPPINGS", "surface_interpolation_matrix", "surface_mapping_matrix", "surface_mass_matrix",
     "SerialComm", "default_comm", "gather_rows", "scatter_rows",
     # errors, records, replay, files
     "CouplingError", "CouplingDivergedError", "CouplingNotConvergedError",

@@ -90,8 +90,10 @@ class CouplingScheme:
         surrogate: Optional surrogate model of the same coupled problem for
             the quasi-Newton accelerations: an object with
             ``inverse_jacobian(r)`` (the prior ``J0 r`` on the accelerated
-            vector, see :mod:`coupling.acceleration`).  Its prediction, if
-            any, is given with :meth:`set_values`.
+            vector, see :mod:`coupling.acceleration`), or a function of the
+            scheme that returns one (for a surrogate that needs the scheme's
+            points and layout, e.g. :meth:`coupling.CoarseSurrogate.on_surfaces`).
+            Its prediction, if any, is given with :meth:`set_values`.
 
     Attributes:
         config: The validated configuration.
@@ -227,6 +229,8 @@ class CouplingScheme:
                                  "do not pass a surrogate as well")
             # the participants' linearisations, composed along this scheme's sweep (coupling.linearization)
             surrogate = LinearizedPrior(self)
+        if surrogate is not None and not hasattr(surrogate, "inverse_jacobian") and callable(surrogate):
+            surrogate = surrogate(self)                 # a factory of the scheme's surrogate
         if surrogate is not None:
             if not hasattr(self.acceleration, "surrogate"):
                 raise ValueError(f"a surrogate needs a quasi-Newton acceleration (iqn-ils, iqn-imvj), "

@@ -60,7 +60,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-__all__ = ["SURFACE_MAPPINGS", "surface_interpolation_matrix", "surface_mapping_matrix"]
+__all__ = ["SURFACE_MAPPINGS", "surface_interpolation_matrix", "surface_mapping_matrix", "surface_mass_matrix"]
 
 SURFACE_MAPPINGS = ("surface", "surface-conservative")
 
@@ -431,3 +431,40 @@ def surface_mapping_matrix(kind: str, writer_points: np.ndarray, reader_points: 
     transpose = surface_interpolation_matrix(reader_points, triangles, writer_points, what=what,
                                              names=("writer", "reader"))
     return transpose.T.tocsr()
+
+
+# degree-4 rule on the reference triangle (Dunavant): barycentric (a, a, 1 - 2a) and its permutations
+_MASS_RULE = [(0.445948490915965, 0.223381589678011), (0.091576213509771, 0.109951743655322)]
+
+
+def _mass_points() -> tuple[np.ndarray, np.ndarray]:
+    st, w = [], []
+    for a, weight in _MASS_RULE:
+        b = 1.0 - 2.0 * a
+        st += [(a, a), (a, b), (b, a)]
+        w += [0.5 * weight] * 3                    # the reference triangle's area is 1/2
+    return np.array(st), np.array(w)
+
+
+def surface_mass_matrix(nodes: np.ndarray, triangles: np.ndarray, what: str = "surface") -> sp.csr_matrix:
+    """``M_ab = ∫ N_a N_b dA`` over a triangulated surface (linear or isoparametric P2 triangles).
+
+    The matrix that turns nodal values of a density into the consistent
+    nodal integrals of it (nodal forces from a traction, say); a degree-4
+    rule, exact on flat triangles.
+    """
+    xyz = _as_points3(nodes, f"{what}: nodes")
+    tri = check_triangles(triangles, xyz.shape[0], f"{what}: triangles")
+    st, w = _mass_points()
+    if tri.shape[1] == 6:
+        n, dn = _p2_shape(st)                                       # (q, 6), (q, 6, 2)
+    else:
+        n = np.column_stack([1.0 - st[:, 0] - st[:, 1], st[:, 0], st[:, 1]])
+        dn = np.broadcast_to(np.array([[-1.0, -1.0], [1.0, 0.0], [0.0, 1.0]]), (len(st), 3, 2))
+    x = xyz[tri]                                                    # (M, k, 3)
+    tangents = np.einsum("mkd,qke->mqed", x, dn)                    # (M, q, 2, 3)
+    area = np.linalg.norm(np.cross(tangents[:, :, 0], tangents[:, :, 1]), axis=2)   # (M, q)
+    local = np.einsum("mq,qa,qb->mab", area * w, n, n)
+    k = tri.shape[1]
+    rows, cols = np.repeat(tri, k, axis=1), np.tile(tri, (1, k))
+    return sp.csr_matrix((local.ravel(), (rows.ravel(), cols.ravel())), shape=(len(xyz), len(xyz)))

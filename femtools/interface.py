@@ -85,11 +85,53 @@ class InterfaceNodes:
         self.index = index.astype(np.int64)
         self.owned = owned
         self._parent = None if parent_dofs is None else np.asarray(parent_dofs, dtype=np.int32)
+        self._space, self._facets, self._triangles = V, facets, None
 
     @property
     def size(self) -> int:
         """Number of interface nodes (global)."""
         return self.points.shape[0]
+
+    def triangles(self) -> np.ndarray:
+        """``(M, 6)`` P2 triangles of a surface interface (3D), as indices into ``points``, replicated.
+
+        Nodes in the order of :mod:`coupling.surface_mapping`: the corners
+        ``v0, v1, v2``, then the nodes on the edges ``(v1, v2)``, ``(v0, v2)``,
+        ``(v0, v1)``.  Only for a P2 space on tetrahedra (its facet nodes are
+        exactly the six nodes of a quadratic triangle).
+        """
+        if self._triangles is None:
+            self._triangles = self._facet_triangles()
+        return self._triangles
+
+    def _facet_triangles(self) -> np.ndarray:
+        V = self._space
+        msh, layout = V.mesh, V.dofmap.dof_layout
+        tdim = msh.topology.dim
+        if tdim != 3 or layout.num_entity_closure_dofs(tdim - 1) != 6:
+            raise ValueError(f"interface triangles need a P2 space on tetrahedra (got a {tdim}D mesh with "
+                             f"{layout.num_entity_closure_dofs(tdim - 1)} nodes per facet)")
+        msh.topology.create_connectivity(tdim - 1, tdim)
+        msh.topology.create_connectivity(tdim, tdim - 1)
+        f2c, c2f = msh.topology.connectivity(tdim - 1, tdim), msh.topology.connectivity(tdim, tdim - 1)
+        row = dict(zip(self.local_blocks.tolist(), self.index.tolist()))
+        n_owned = msh.topology.index_map(tdim - 1).size_local
+        tri = []
+        for f in self._facets[self._facets < n_owned]:
+            cell = f2c.links(f)[0]
+            local = int(np.flatnonzero(c2f.links(cell) == f)[0])
+            blocks = V.dofmap.cell_dofs(cell)[layout.entity_closure_dofs(tdim - 1, local)]
+            tri.append([row[int(b)] for b in blocks])      # 3 corners, then 3 edge nodes
+        tri = np.array(tri, dtype=np.int64).reshape(-1, 6)
+        if self.comm.size > 1:
+            tri = np.vstack(self.comm.allgather(tri))
+        # each edge node to the edge (v1, v2), (v0, v2), (v0, v1) whose midpoint it is nearest
+        x = self.points
+        mid = 0.5 * (x[tri[:, [1, 0, 0]]] + x[tri[:, [2, 2, 1]]])               # (M, 3 edges, gdim)
+        dist = np.linalg.norm(x[tri[:, 3:]][:, None, :, :] - mid[:, :, None, :], axis=3)  # edge, node
+        order = np.argmin(dist, axis=2)
+        edges = np.take_along_axis(tri[:, 3:], order, axis=1)
+        return np.ascontiguousarray(np.hstack([tri[:, :3], edges]))
 
     def dofs(self, component: int | None = None, parent: bool = False) -> np.ndarray:
         """Local unrolled dofs (owned and ghost), ``(n_local, bs)`` or one component."""

@@ -7,6 +7,7 @@ dolfinx object of the solver.
 
     solver.interface_names()                  -> ["Gamma1", ...]
     solver.interface_points("Gamma1")         -> (N, 2) array, replicated on all ranks
+    solver.interface_triangles("Gamma1")      -> (M, 6) P2 triangles of a 3D interface (indices)
     solver.input_names("Gamma1")              -> {"robin_normal": 2, ...}  (name -> components)
     solver.set_interface_data("Gamma1", robin_normal=..., ...)
     solver.solve()
@@ -72,6 +73,10 @@ class FieldSolver(abc.ABC):
 
     def interface_points(self, name: str) -> np.ndarray:
         return self.interface_nodes(name).points
+
+    def interface_triangles(self, name: str) -> np.ndarray:
+        """``(M, 6)`` P2 triangles of a 3D interface, indices into its points (:meth:`InterfaceNodes.triangles`)."""
+        return self.interface_nodes(name).triangles()
 
     def input_names(self, name: str) -> dict[str, int]:
         self.interface_nodes(name)

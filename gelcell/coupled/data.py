@@ -33,10 +33,12 @@ monolithic reference's I13 on the current interface.
 
 from __future__ import annotations
 
+import typing
+
 import coupling as cp
 from gelcell.geometry import DeviceBoundaries
 
-__all__ = ["coupling_data", "FLUID_TO_GEL", "GEL_TO_FLUID", "GEL_TO_MOVING_FLUID"]
+__all__ = ["coupling_data", "extensive_data", "FLUID_TO_GEL", "GEL_TO_FLUID", "GEL_TO_MOVING_FLUID", "EXTENSIVE"]
 
 
 FLUID_TO_GEL = ("traction", "velocity")
@@ -47,6 +49,15 @@ GEL_TO_FLUID = ("gel_traction", "mixture_velocity", "interstitial_velocity")
 
 #: gel -> fluid with finite kinematics (see the module docstring)
 GEL_TO_MOVING_FLUID = ("gel_traction", "normal_flux", "interstitial_velocity", "displacement")
+
+
+#: data that are consistent nodal integrals (a flux, forces), not nodal values of a field
+EXTENSIVE = ("normal_flux", "force", "gel_force")
+
+
+def extensive_data(names: typing.Iterable[str]) -> list[str]:
+    """The names among ``names`` (``"Gamma1/normal_flux"``, ...) of data that are nodal integrals."""
+    return [n for n in names if n.rsplit("/", 1)[-1] in EXTENSIVE]
 
 
 def coupling_data(boundaries: DeviceBoundaries, gamma2: str = "dirichlet", kinematics: str = "small",

@@ -25,7 +25,7 @@ from fluid.ale import MovingStokesSolver
 from gel import GelParameters, PoroelasticGelSolver
 from gelcell.case import DEFAULT_GAMMA2, GAMMA2, CaseParameters
 from gelcell.coupled import priorcache
-from gelcell.coupled.data import coupling_data
+from gelcell.coupled.data import coupling_data, extensive_data
 from gelcell.coupled import solverchoice
 from gelcell.coupled.defaults import (AUTO_PRIOR_MAX_UNKNOWNS, TRANSIENT_PRIOR, coupling_config,
                                       default_gamma2_coefficient, default_robin_coefficient)
@@ -87,7 +87,8 @@ class Device:
         self.data = coupling_data(self.boundaries, gamma2, self.kinematics, dim=self.fluid.mesh.geometry.dim)
         self.scheme: cp.CouplingScheme | None = None
         self.result: cp.CouplingResult | None = None
-        #: where the last solve's linearized prior came from: "computed", "disk cache", "reused" or None
+        #: where the last solve's prior came from: "computed", "disk cache", "reused" (its linearized
+        #: prior), "surrogate" (another model's, :meth:`coarse_surrogate`) or None
         self.prior_source: str | None = None
         #: why the default went without its linearized prior (None: it did not)
         self.prior_declined: str | None = None
@@ -181,8 +182,8 @@ class Device:
         self.gel.set_interface_stiffnesses(stiffnesses)
         self.setup_time += time.perf_counter() - t0
 
-    def _choose_solve_paths(self, config: typing.Mapping) -> None:
-        """The exact solve path under the linearized prior, the linear path otherwise.
+    def _choose_solve_paths(self, config: typing.Mapping, exact: bool = False) -> None:
+        """The exact solve path under the linearized prior (or ``exact``), the linear path otherwise.
 
         The linear path leaves each solve's strain-sized nonlinear remainder
         (relative to the step) to the next coupling iteration.  After the
@@ -191,8 +192,9 @@ class Device:
         the map's: measured, 8 iterations instead of 4 (shear baseline).
         """
         acceleration = config.get("acceleration") or {}
-        exact = isinstance(acceleration, typing.Mapping) and acceleration.get("jacobian_prior") == "linearized"
-        if exact and self.gamma2 == "robin":
+        linearized = isinstance(acceleration, typing.Mapping) and acceleration.get("jacobian_prior") == "linearized"
+        exact = exact or linearized
+        if linearized and self.gamma2 == "robin":
             raise ValueError("coupling.acceleration.jacobian_prior = 'linearized' needs gamma2 'dirichlet' or "
                              "'schur' (the cell's Jacobian is not built for the Robin-Neumann split)")
         # as built: gel and cell on the linear path, the moving fluid in steady runs only (the
@@ -214,7 +216,7 @@ class Device:
 
     def solve(self, config: typing.Mapping | None = None, verbose: bool = True,
               record_data: bool = False, reuse: typing.Mapping | None = None,
-              initial: typing.Mapping | None = None) -> cp.CouplingResult:
+              initial: typing.Mapping | None = None, surrogate: typing.Any = None) -> cp.CouplingResult:
         """Run the partitioned coupling to convergence (steady state).
 
         ``reuse``: a ``scheme.reuse_state()`` of a solve of the same scaled
@@ -227,12 +229,15 @@ class Device:
         states in it (the field solutions: the linear path's starting point)
         are loaded if they have this device's array shapes.  ``initial``:
         interface data (solver units) that replace the initial guess, e.g. a
-        prediction extrapolated from earlier solves.
+        prediction extrapolated from earlier solves.  ``surrogate``: the
+        quasi-Newton prior of another model of this problem (e.g. a
+        ``coupling.CoarseSurrogate`` of a coarser device), in place of the
+        device's default prior.
         """
         config = dict(config or coupling_config(with_cell=self.cell is not None, params=self.params))
         config.setdefault("verbose", verbose)
         config.setdefault("record_data", record_data)
-        self._build_scheme(config)
+        self._build_scheme(config, surrogate)
         if reuse is not None:
             # under the linearized prior the secant columns model what the prior leaves out, the
             # strain-sized part, which scales with Ca: another Ca's columns mislead (normal device,
@@ -243,6 +248,8 @@ class Device:
             self.scheme.set_values(initial)
         prior = self.linearized_prior
         self.prior_source = None if prior is None else "reused" if prior.state() is not None else "computed"
+        if surrogate is not None:
+            self.prior_source = "surrogate"
         if self.prior_source == "computed":
             prior.load_state(priorcache.load(self, self.scheme, self.comm))
             self.prior_source = "computed" if prior.state() is None else "disk cache"
@@ -251,11 +258,15 @@ class Device:
             priorcache.store(self, self.scheme, prior.state(), self.comm)
         return self.result
 
-    def _build_scheme(self, config: dict) -> dict:
+    def _build_scheme(self, config: dict, surrogate: typing.Any = None) -> dict:
         """Build ``self.scheme`` under the default prior where it pays, else ``config``; return the one used."""
+        self.prior_declined = None
+        if surrogate is not None:
+            self.scheme = cp.build_scheme(config, self.participants, self.data, comm=self.comm, surrogate=surrogate)
+            self._choose_solve_paths(config, exact=True)
+            return config
         chosen = self._default_prior(config)
         self.scheme = cp.build_scheme(chosen, self.participants, self.data, comm=self.comm)
-        self.prior_declined = None
         if chosen is not config and not self._prior_pays(self.scheme.layout.size):
             chosen = config                             # the plain secant model
             self.prior_declined = (f"{self.scheme.layout.size} interface unknowns; the default's dense "
@@ -277,6 +288,16 @@ class Device:
         chosen = self._build_scheme(config)
         self.prior_source = None if self.linearized_prior is None else "computed per dt"
         return chosen, self.scheme
+
+    def coarse_surrogate(self, coarse: "Device") -> typing.Callable[[cp.CouplingScheme], cp.CoarseSurrogate]:
+        """The prior of ``coarse`` (the same case on coarser meshes, solved under its linearized prior)
+        carried to this device's scheme: pass it to :meth:`solve` as ``surrogate`` (3D devices only:
+        the transfers project onto the interfaces' triangles)."""
+        if coarse.linearized_prior is None:
+            raise ValueError("coarse_surrogate: the coarse device has no linearized prior; solve it with "
+                             "coupling.acceleration.jacobian_prior = 'linearized' first")
+        return lambda scheme: cp.CoarseSurrogate.on_surfaces(scheme, coarse.scheme,
+                                                              extensive=extensive_data(scheme.layout.names))
 
     @property
     def linearized_prior(self) -> cp.LinearizedPrior | None:

@@ -53,7 +53,19 @@ from gelcell.coupled.data import GEL_TO_FLUID, GEL_TO_MOVING_FLUID
 __all__ = ["FluidParticipant", "MovingFluidParticipant", "GelParticipant", "CellParticipant"]
 
 
-class FluidParticipant(cp.Participant):
+class _FieldParticipant(cp.Participant):
+    """A participant wrapping one field solver (``self.solver``): its interface points and triangles."""
+
+    solver: typing.Any
+
+    def interface_points(self, mesh_name: str) -> np.ndarray:
+        return self.solver.interface_points(mesh_name)
+
+    def interface_triangles(self, mesh_name: str) -> np.ndarray:
+        return self.solver.interface_triangles(mesh_name)
+
+
+class FluidParticipant(_FieldParticipant):
     """The Stokes solver seen by the coupling: Robin I13 + I16 on Gamma1/Gamma3.
 
     Fluid convention: t = (Sigma - P I) n_F is the traction ON the fluid, n_F
@@ -76,8 +88,6 @@ class FluidParticipant(cp.Participant):
         self.alpha_n, self.alpha_t = float(alpha_n), float(alpha_t)
         self.inflow = inflow
 
-    def interface_points(self, mesh_name: str) -> np.ndarray:
-        return self.solver.interface_points(mesh_name)
 
     def save_state(self):
         return {}
@@ -164,7 +174,7 @@ class MovingFluidParticipant(FluidParticipant):
                                        displacement=inputs[f"{g}/displacement"])
 
 
-class GelParticipant(cp.Participant):
+class GelParticipant(_FieldParticipant):
     """The gel solver seen by the coupling: I14, I15, I17 on Gamma1/Gamma3, Neumann on Gamma2.
 
     Time windows: ``begin_window(t, dt)`` makes the state at t the newest
@@ -184,8 +194,6 @@ class GelParticipant(cp.Participant):
         self.gamma2 = gamma2
         self.clock = WindowClock(time_scheme)
 
-    def interface_points(self, mesh_name: str) -> np.ndarray:
-        return self.solver.interface_points(mesh_name)
 
     def save_state(self):
         return {**self.solver.get_state(), "history_times": self.clock.state()}
@@ -261,7 +269,7 @@ class GelParticipant(cp.Participant):
         return out
 
 
-class CellParticipant(cp.Participant):
+class CellParticipant(_FieldParticipant):
     """The cell solver seen by the coupling; returns the force on the gel.
 
     Dirichlet-Neumann: the cell takes the gel's displacement; with
@@ -279,8 +287,6 @@ class CellParticipant(cp.Participant):
                  gamma2: str = "dirichlet"):
         self.solver, self.interfaces, self.gamma2 = solver, list(interfaces), gamma2
 
-    def interface_points(self, mesh_name: str) -> np.ndarray:
-        return self.solver.interface_points(mesh_name)
 
     def save_state(self):
         return {"u": self.solver.displacement.x.array.copy()}
