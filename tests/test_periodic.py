@@ -260,3 +260,19 @@ def test_device_run_until_periodic(shared_tmp_path, cli_stderr):
     assert lag["quantity"] == "centroid_x" and 0 < lag["time"] < period / 4
     assert last["cell_strain"]["min"] < last["cell_strain"]["mean"] < last["cell_strain"]["max"]
     assert last["centroid_excursion"]["x"] > 0.1 * abs(steady[0])
+
+
+def test_without_a_cell_the_gel_is_tracked():
+    """No cell: the change, statistics and lag are those of the gel's max |u_s| (here the toy's y)."""
+    period, steps = 1.0, 20
+    rows, _ = run_toy(period, steps, 1e-6)
+    gel_rows = [{"t": r["t"], "inflow": r["inflow"], "max_network_displacement": r["centroid_x"]} for r in rows]
+    monitor = PeriodicMonitor(period, steps, 1e-6, 50, with_cell=False)
+    assert monitor.done(gel_rows) and not monitor.done(gel_rows[:-steps])
+    block = monitor.summary(gel_rows, _Params())
+    last = block["per_cycle"][-1]
+    assert block["phase_lag"]["quantity"] == "max_network_displacement"
+    assert last["phase_lag"]["max_network_displacement"]["time"] == pytest.approx(discrete_lag(period, steps),
+                                                                                   rel=1e-5)
+    assert last["network_displacement"]["mean"] == pytest.approx(MEAN, rel=1e-5)
+    assert "cell_strain" not in last and "network_displacement_um" in block["last_cycle_si"]
