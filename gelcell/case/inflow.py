@@ -10,6 +10,14 @@ times are in the paper's time unit L0/V0, like ``dt`` and ``t_end``:
     table:FILE.csv          (t, f) rows, linear in between, constant beyond the ends
                             (a regular UTF-8 CSV file of at most MAX_TABLE_BYTES)
 
+Periodic waveforms (:attr:`Waveform.period`, what ``--until-periodic`` needs):
+a sine (period PERIOD), a square wave (ON + OFF), and a table whose first and
+last f are equal: :meth:`Waveform.repeated` makes it repeat with its span
+t_last - t_first as the period, f(t) = f_table(t_first + mod(t - t_first, span)).
+A time within 1e-9 of a period of an edge (a square wave's switch, a repeated
+table's start) is taken to be on it, so that samples at the same phase of
+different periods see the same f despite round-off in t.
+
 Every spec is parsed and checked (:func:`parse_inflow`) before anything is
 meshed: a bad spec raises :class:`~gelcell.errors.ParameterError` naming
 ``inflow`` and what is allowed.
@@ -49,6 +57,8 @@ class Waveform:
     spec: str
     values: tuple[float, ...] = ()
     table: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+    #: a table repeated with its span as the period (:meth:`repeated`); else constant beyond its ends
+    repeat: bool = False
 
     def __call__(self, t):
         t = np.asarray(t, dtype=float)
@@ -61,10 +71,25 @@ class Waveform:
             f = mean + amp * np.sin(2 * np.pi * t / period)
         elif self.kind == "square":
             on, off = self.values
-            f = np.where(np.mod(t, on + off) < on, 1.0, 0.0)
+            f = np.where(_phase(t, 0.0, on + off, (on,)) < on, 1.0, 0.0)
+        elif self.repeat:
+            times, values = self.table
+            f = np.interp(times[0] + _phase(t, times[0], times[-1] - times[0]), times, values)
         else:
             f = np.interp(t, *self.table)
         return float(f) if f.ndim == 0 else f
+
+    @property
+    def periodic_table(self) -> bool:
+        """A table that can repeat: at least two rows and its first and last f equal."""
+        return self.kind == "table" and len(self.table[0]) >= 2 and self.table[1][0] == self.table[1][-1]
+
+    def repeated(self) -> "Waveform":
+        """This table repeated with its span as the period (raise ParameterError if it cannot repeat)."""
+        if not self.periodic_table:
+            raise _bad(self.spec, "a table repeats only if it has two rows or more and its first and last f "
+                                  "are equal (its period is then its time span)")
+        return dataclasses.replace(self, repeat=True)
 
     @property
     def constant_after(self) -> float | None:
@@ -74,17 +99,20 @@ class Waveform:
         if self.kind == "ramp":
             return self.values[0]
         if self.kind == "table":
-            return self.table[0][-1]
+            return None if self.repeat and len(set(self.table[1])) > 1 else self.table[0][-1]
         if self.kind == "sine" and self.values[1] == 0.0:
             return 0.0
         return None
 
     @property
     def period(self) -> float | None:
+        """The period of a sine, a square wave or a repeated table; None for the others."""
         if self.kind == "sine":
             return self.values[2]
         if self.kind == "square":
             return self.values[0] + self.values[1]
+        if self.repeat:
+            return self.table[0][-1] - self.table[0][0]
         return None
 
     def breakpoints(self, t0: float, t1: float) -> list[float]:
@@ -96,11 +124,26 @@ class Waveform:
             period = on + off
             k0 = math.floor(t0 / period)
             pts = [k * period + s for k in range(k0, k0 + int((t1 - t0) / period) + 2) for s in (0.0, on)]
+        elif self.repeat:
+            times = np.asarray(self.table[0])
+            span = times[-1] - times[0]
+            k0 = math.floor((t0 - times[0]) / span)
+            pts = [p + k * span for k in range(k0, k0 + int((t1 - t0) / span) + 2) for p in times]
         elif self.kind == "table":
             pts = list(self.table[0])
         else:
             pts = []
         return sorted(p for p in pts if t0 < p < t1)
+
+
+def _phase(t: np.ndarray, origin: float, period: float, edges: tuple[float, ...] = ()) -> np.ndarray:
+    """mod(t - origin, period) in [0, period), snapped onto 0 and onto ``edges`` within 1e-9 period."""
+    phase = np.mod(t - origin, period)
+    snap = 1e-9 * period
+    phase = np.where(period - phase < snap, 0.0, phase)
+    for edge in edges:
+        phase = np.where(np.abs(phase - edge) < snap, edge, phase)
+    return phase
 
 
 def _bad(spec: str, why: str) -> ParameterError:

@@ -4,8 +4,9 @@ Times are in the paper's unit L0/V0 (the source paper's Δt = 5e-8 is in this
 unit); the output reports them in seconds as well.  One
 :class:`TimeSettings` comes from the ``[time]`` table of a case file and the
 command line (``--transient --dt --t-end --until-steady --time-scheme
---adaptive --time-tol --inflow``), and is validated before anything is meshed:
-a bad value raises :class:`~gelcell.errors.ParameterError` naming it.
+--adaptive --time-tol --inflow --until-periodic --periodic-tol
+--steps-per-period``), and is validated before anything is meshed: a bad
+value raises :class:`~gelcell.errors.ParameterError` naming it.
 
 Time scales (:func:`time_scales`), paper units:
 
@@ -22,6 +23,14 @@ Defaults: ``dt = tau_c / 40`` (fixed steps); adaptive runs start at
 ``tau_KV / 10`` and grow.  A run stops at ``t_end``, or when steady: the
 gel's displacement changes by less than ``steady_tol`` of itself per
 consolidation time tau_c (relative change per unit time, in units of tau_c).
+
+Until periodic (``until_periodic``): a periodic inflow (a sine, a square wave,
+a table whose first and last f are equal, then repeated) with period P is
+stepped at the fixed dt = P / N, N = ``steps_per_period`` (default 40, the
+default steps per tau_c; a given dt must divide P), until the response of
+one period differs from the one before by less than ``periodic_tol``
+(:mod:`gelcell.post.periodic`), or ``max_cycles`` periods have run.  It
+excludes ``t_end``, ``until_steady`` and ``adaptive``.
 """
 
 from __future__ import annotations
@@ -39,7 +48,12 @@ __all__ = ["TimeSettings", "time_scales", "TIME_KEYS"]
 
 #: keys of the ``[time]`` table
 TIME_KEYS = ("transient", "dt", "t_end", "until_steady", "scheme", "adaptive", "time_tol", "steady_tol",
-             "inflow", "output_every", "max_windows")
+             "inflow", "output_every", "max_windows", "until_periodic", "periodic_tol", "steps_per_period",
+             "max_cycles")
+#: steps per period of an until-periodic run without dt: the steps per tau_c of the fixed default
+STEPS_PER_PERIOD = 40
+#: fewest steps per period: the first harmonic of the response (its phase lag) needs at least 4 samples
+MIN_STEPS_PER_PERIOD = 4
 
 
 def time_scales(params: CaseParameters) -> dict[str, float]:
@@ -87,7 +101,11 @@ class TimeSettings:
         inflow: the waveform specification (:mod:`gelcell.case.inflow`).
         output_every: an XDMF frame every this many windows (and the last one).
         max_windows: the run stops with an error after this many windows.
-        waveform: the parsed ``inflow``.
+        until_periodic: step a periodic inflow until the response repeats (see the module docstring).
+        periodic_tol: the cycle-to-cycle change below which the response is periodic, in (0, 1).
+        steps_per_period: windows per period (None: P / dt if dt is given, else ``STEPS_PER_PERIOD``).
+        max_cycles: an until-periodic run ends (not converged) after this many periods, integer >= 2.
+        waveform: the parsed ``inflow`` (a table repeated with until_periodic).
     """
 
     transient: bool = False
@@ -101,6 +119,10 @@ class TimeSettings:
     inflow: str = "step"
     output_every: int = 5
     max_windows: int = 20000
+    until_periodic: bool = False
+    periodic_tol: float = 1e-3
+    steps_per_period: int | None = None
+    max_cycles: int = 50
     base_dir: str | None = dataclasses.field(default=None, compare=False)
 
     def __post_init__(self):
@@ -109,7 +131,7 @@ class TimeSettings:
             problems.append(f"parameter 'time.transient' = {self.transient!r} must be true or false")
         _number(problems, "dt", self.dt)
         _number(problems, "t_end", self.t_end)
-        for key in ("until_steady", "adaptive"):
+        for key in ("until_steady", "adaptive", "until_periodic"):
             if not isinstance(getattr(self, key), bool):
                 problems.append(f"parameter 'time.{key}' = {getattr(self, key)!r} must be true or false")
         if self.scheme not in ("be", "bdf2"):
@@ -117,13 +139,19 @@ class TimeSettings:
                             f"or 'bdf2'")
         _number(problems, "time_tol", self.time_tol, below=1.0)
         _number(problems, "steady_tol", self.steady_tol, below=1.0)
-        for key in ("output_every", "max_windows"):
+        _number(problems, "periodic_tol", self.periodic_tol, below=1.0)
+        for key, least in (("output_every", 1), ("max_windows", 1), ("max_cycles", 2),
+                           ("steps_per_period", MIN_STEPS_PER_PERIOD)):
             value = getattr(self, key)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                problems.append(f"parameter 'time.{key}' = {value!r} must be an integer >= 1")
+            if key == "steps_per_period" and value is None:
+                continue
+            if isinstance(value, bool) or not isinstance(value, int) or value < least:
+                problems.append(f"parameter 'time.{key}' = {value!r} must be an integer >= {least}")
         if problems:
             raise ParameterError("; ".join(problems))
         waveform = parse_inflow(self.inflow, self.base_dir)
+        if self.until_periodic:
+            waveform = self._periodic_waveform(waveform)
         object.__setattr__(self, "waveform", waveform)
         if waveform.kind == "table":
             # keep the table's absolute path, so that a resumed run finds it from anywhere
@@ -134,15 +162,57 @@ class TimeSettings:
         if self.dt is not None and self.t_end is not None and self.dt > self.t_end:
             raise ParameterError(f"parameter 'time.dt' = {self.dt:g} must not exceed 'time.t_end' = "
                                  f"{self.t_end:g}")
-        if (self.until_steady or self.t_end is None) and waveform.constant_after is None:
+        if self.until_periodic:
+            self._check_periodic_stepping(waveform.period)
+        elif (self.until_steady or self.t_end is None) and waveform.constant_after is None:
             raise ParameterError(f"the inflow {self.inflow!r} never becomes constant, so the run cannot "
                                  f"stop when steady: give 'time.t_end' (--t-end)")
 
     waveform: Waveform = dataclasses.field(init=False, repr=False, compare=False, default=None)
 
+    def _periodic_waveform(self, waveform: Waveform) -> Waveform:
+        """The waveform an until-periodic run steps (a table repeated); refuse what conflicts with it."""
+        for key, why in (("until_steady", "stops when steady"), ("adaptive", "chooses its own steps"),
+                         ("t_end", "stops at a given time")):
+            if getattr(self, key) not in (None, False):
+                raise ParameterError(f"parameter 'time.{key}' = {getattr(self, key)!r}: a run with "
+                                     f"'time.until_periodic' (--until-periodic) stops when the response repeats "
+                                     f"with the period (at most 'time.max_cycles' periods), not one that {why}")
+        if waveform.kind == "table":
+            return waveform.repeated()
+        if waveform.period is None:
+            raise ParameterError(f"parameter 'inflow' = {self.inflow!r} is not periodic, which "
+                                 f"'time.until_periodic' (--until-periodic) needs: give sine:MEAN,AMP,PERIOD, "
+                                 f"square:ON,OFF or a table:FILE.csv whose first and last f are equal")
+        return waveform
+
+    def _check_periodic_stepping(self, period: float) -> None:
+        """dt must divide the period, and agree with steps_per_period if both are given."""
+        if self.dt is None:
+            return
+        steps = round(period / self.dt)
+        if steps < MIN_STEPS_PER_PERIOD or abs(steps * self.dt - period) > 1e-9 * period:
+            raise ParameterError(f"parameter 'time.dt' = {self.dt:g} must divide the inflow's period {period:g} "
+                                 f"into at least {MIN_STEPS_PER_PERIOD} equal steps (e.g. --dt "
+                                 f"{period / max(steps, MIN_STEPS_PER_PERIOD):.12g}), or give "
+                                 f"'time.steps_per_period' instead")
+        if self.steps_per_period is not None and self.steps_per_period != steps:
+            raise ParameterError(f"parameter 'time.steps_per_period' = {self.steps_per_period} disagrees with "
+                                 f"'time.dt' = {self.dt:g}, which divides the period {period:g} into {steps} "
+                                 f"steps: give one of them")
+
     @property
     def stops_when_steady(self) -> bool:
-        return self.until_steady or self.t_end is None
+        return not self.until_periodic and (self.until_steady or self.t_end is None)
+
+    @property
+    def period_steps(self) -> int | None:
+        """Windows per period of an until-periodic run (None otherwise)."""
+        if not self.until_periodic:
+            return None
+        if self.dt is not None:
+            return round(self.waveform.period / self.dt)
+        return self.steps_per_period or STEPS_PER_PERIOD
 
     @classmethod
     def from_dict(cls, table: typing.Mapping | None, overrides: typing.Mapping | None = None,
@@ -163,9 +233,13 @@ class TimeSettings:
         """dt, its bounds and the stop rule for ``params`` (defaults from :func:`time_scales`)."""
         scales = time_scales(params)
         tau = scales["consolidation"]
-        if self.dt is not None:
+        if self.until_periodic:
+            dt = self.waveform.period / self.period_steps
+        elif self.dt is not None:
             dt = self.dt
         else:
             dt = scales["kelvin_voigt"] / 10 if self.adaptive else tau / 40
         return {"dt": dt, "dt_max": max(2.0 * tau, dt), "dt_min": 1e-6 * min(dt, scales["kelvin_voigt"]),
-                "t_end": self.t_end, "until_steady": self.stops_when_steady, "scales": scales}
+                "t_end": self.t_end, "until_steady": self.stops_when_steady, "scales": scales,
+                "until_periodic": self.until_periodic, "steps_per_period": self.period_steps,
+                "period": self.waveform.period if self.until_periodic else None}

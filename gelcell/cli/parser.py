@@ -114,6 +114,9 @@ OPTION_KEYS: dict[str, tuple[str, typing.Callable]] = {
     "steady_tol": ("time.steady_tol", float),
     "inflow": ("time.inflow", _inflow),
     "output_every": ("time.output_every", int),
+    "until_periodic": ("time.until_periodic", bool),
+    "periodic_tol": ("time.periodic_tol", float),
+    "steps_per_period": ("time.steps_per_period", int),
     "param": ("sweep.param", str),
     "values": ("sweep.values", list),
     "compare_kinematics": ("sweep.compare_kinematics", bool),
@@ -230,6 +233,13 @@ def _add_time_arguments(p: argparse.ArgumentParser) -> None:
                    help="inflow V0 f(t): step (default), ramp:T, sine:MEAN,AMP,PERIOD, square:ON,OFF, "
                         "table:FILE.csv")
     g.add_argument("--output-every", type=int, metavar="N", help="an XDMF frame every N windows (default 5)")
+    _flag(g, "--until-periodic", help="a periodic inflow (sine, square, a table whose first and last f are "
+                                      "equal, repeated) until one period's response differs from the one before "
+                                      "by less than --periodic-tol; the periodic block of summary.json")
+    g.add_argument("--periodic-tol", type=_number, metavar="TOL",
+                   help="periodic when the cycle-to-cycle change is below TOL (default 1e-3)")
+    g.add_argument("--steps-per-period", type=int, metavar="N",
+                   help="with --until-periodic: dt = period / N (default 40, or period / --dt)")
     g.add_argument("--resume", metavar="DIR",
                    help="continue the interrupted time-dependent run whose --out was DIR from DIR.partial/")
 

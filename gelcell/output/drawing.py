@@ -32,7 +32,7 @@ import matplotlib.tri as mtri  # noqa: E402
 from matplotlib.collections import TriMesh  # noqa: E402
 
 __all__ = ["render_device_figures", "device_figure_tasks", "run_tasks", "gouraud", "profiles_figure",
-           "draw_transient_figures", "write_png"]
+           "draw_transient_figures", "draw_periodic_figure", "write_png"]
 
 
 def _triangulation(data):
@@ -368,6 +368,60 @@ def draw_transient_figures(directory: str, rows: list[dict], summary: dict, para
     fig = _trajectory_figure(rows, summary["transient"], params)
     written = _save(fig, directory, "trajectory.png")
     return written + _save(_iterations_figure(rows, summary["transient"]), directory, "iterations.png")
+
+
+def draw_periodic_figure(directory: str, rows: list[dict], block: dict, params, comm) -> list[str]:
+    """periodic_cycle.png: the last cycle's tracked quantities and the inflow, each normalised to [0, 1]."""
+    if comm.rank != 0 or not block["per_cycle"]:
+        return []
+    return _save(_periodic_figure(rows, block, params), directory, "periodic_cycle.png")
+
+
+#: the curves of periodic_cycle.png: (column, label, reporting kind or None for dimensionless)
+_PERIODIC_CURVES = (("centroid_x", "centroid x", "length"), ("centroid_y", "centroid y", "length"),
+                    ("centroid_z", "centroid z", "length"), ("cell_strain_max", "cell's peak von Mises strain", None),
+                    ("cell_stress_max", "cell's peak von Mises stress", "stress"),
+                    ("max_network_displacement", "max |u_s|", "length"))
+
+
+def _normalised(q: np.ndarray) -> np.ndarray | None:
+    """(q - min) / (max - min), or None for a constant q."""
+    span = np.ptp(q)
+    return None if not span > 0 else (q - np.min(q)) / span
+
+
+def _periodic_figure(rows: list[dict], block: dict, params):
+    """The last cycle against its phase t/P, from the sample at its start (the previous cycle's last)."""
+    steps, count = block["steps_per_period"], block["cycles"]
+    cycle = rows[(count - 1) * steps: count * steps + 1]
+    phase = np.linspace(0.0, 1.0, len(cycle))
+    lags = block["per_cycle"][-1]["phase_lag"]
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    inflow = _normalised(np.array([r["inflow"] for r in cycle]))
+    if inflow is not None:
+        ax.plot(phase, inflow, "k--", lw=1.6, label="inflow f(t)")
+    for column, label, kind in _PERIODIC_CURVES:
+        if column not in cycle[0] or not np.all(np.isfinite([r[column] for r in cycle])):
+            continue
+        q = np.array([r[column] for r in cycle])
+        curve = _normalised(q)
+        if curve is None:
+            continue
+        unit = {None: "", "length": " µm", "stress": " mPa"}[kind]     # params.to_report's units
+        values = q if kind is None else params.to_report(q, kind)
+        lag = lags.get(column)
+        lag_words = "" if lag is None else f", lag {lag['degrees']:.1f}°"
+        ax.plot(phase, curve, "-", marker=".", ms=3,
+                label=f"{label} {np.min(values):.4g} to {np.max(values):.4g}{unit}{lag_words}")
+    verdict = "periodic" if block["converged"] else "not yet periodic"
+    change = "" if block["change"] is None else f", change {block['change']:.1e}"
+    ax.set_title(f"{params.label}: the last of {count} cycles ({verdict}{change}), period "
+                 f"{params.to_si(block['period'], 'time'):.3g} s")
+    ax.set_xlabel("phase t / period in the last cycle")
+    ax.set_ylabel("normalised: (q - min) / (max - min) over the cycle")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best", fontsize=7)
+    return fig
 
 
 def _trajectory_figure(rows: list[dict], tr: dict, params):

@@ -22,6 +22,11 @@ its factorisation (docs/transient.md measures the alternative).
 
 Steady state: the relative change of the gel's displacement per consolidation
 time, max|u^{n+1} - u^n| / max|u^{n+1}| * tau_c / dt, below ``steady_tol``.
+
+Until periodic: fixed dt = P / N, stopped at the end of the first cycle whose
+response differs from the previous one's by less than ``periodic_tol``, or
+after ``max_cycles`` cycles (:class:`gelcell.post.periodic.PeriodicMonitor`,
+which reads only the rows, so a resumed run continues the same count).
 """
 
 from __future__ import annotations
@@ -38,6 +43,7 @@ from mpi4py import MPI
 from femtools.canonical import CanonicalOrder
 from gelcell.case import CaseParameters, TimeSettings
 from gelcell.errors import ModelLimitError, ParameterError
+from gelcell.post.periodic import PeriodicMonitor
 from gelcell.post.quantities import DeviceQuantities
 from gelcell.run.backends import WindowOutcome
 from gelcell.run.frames import FRAMES_DIR, write_frame
@@ -72,6 +78,9 @@ class TransientRun:
         self.plan = settings.resolved(params)
         self.tau = self.plan["scales"]["consolidation"]
         self.quantities = DeviceQuantities(backend.fields)
+        self.periodic = None if not settings.until_periodic else PeriodicMonitor(
+            self.plan["period"], self.plan["steps_per_period"], settings.periodic_tol, settings.max_cycles,
+            params.with_cell)
         self.state = {"t": 0.0, "windows": 0, "dt_next": self.plan["dt"], "rows": [], "frames": [],
                       "past": [], "past_times": [], "u_scale": 0.0, "rejected": 0, "wall_time": 0.0,
                       "steady": False}
@@ -182,6 +191,8 @@ class TransientRun:
         st, plan = self.state, self.plan
         if plan["t_end"] is not None and st["t"] >= plan["t_end"] * (1 - 1e-12):
             return True
+        if self.periodic is not None:
+            return self.periodic.done(st["rows"])
         return plan["until_steady"] and st["steady"]
 
     def _start(self) -> None:
@@ -229,7 +240,8 @@ class TransientRun:
             self._start()
         while not self._done():
             if st["windows"] >= settings.max_windows:
-                goal = "steady state" if self.plan["t_end"] is None else "t_end"
+                goal = "t_end" if self.plan["t_end"] is not None else (
+                    "a periodic response" if self.periodic is not None else "steady state")
                 raise ModelLimitError(f"time-dependent run: {settings.max_windows} windows (time.max_windows) "
                                       f"reached at t = {st['t']:.6g} before {goal}: raise max_windows in the "
                                       f"[time] table of a --config file, or give a larger --dt or a --t-end")
@@ -266,5 +278,11 @@ class TransientRun:
             where = f"max |u_s| {row['max_network_displacement']:.4e}"
         self.say(f"window {st['windows']:4d}  t = {st['t']:.4e} ({seconds:.3e} s)  dt = {dt:.3e}  "
                  f"iterations {outcome.iterations:3d}  {where}  change/tau {steady:.1e}")
+        if self.periodic is not None and (len(st["rows"]) - 1) % self.periodic.steps == 0:
+            k = self.periodic.cycles(st["rows"])
+            change = self.periodic.change(st["rows"], k)
+            self.say(f"cycle {k:3d} ends at t = {st['t']:.4e}: cycle-to-cycle change "
+                     f"{'n/a (the first)' if change is None else f'{change:.2e}'} "
+                     f"(periodic_tol {self.periodic.tol:.1e})")
 
 

@@ -48,6 +48,9 @@ def _header(config: RunConfig, coupling: dict | None, plan: dict) -> list[str]:
     params, settings, scales = config.case, config.time, plan["scales"]
     stepping = f", time-dependent ({settings.scheme}, {'adaptive' if settings.adaptive else 'fixed'} dt)"
     until = "steady" if plan["t_end"] is None else f"t = {plan['t_end']:.4e}"
+    if plan["until_periodic"]:
+        until = (f"periodic (period {plan['period']:.4e}, {plan['steps_per_period']} steps per period, "
+                 f"periodic_tol {settings.periodic_tol:.1e}, at most {settings.max_cycles} cycles)")
     return [run_header(config, coupling, stepping) + f", inflow {settings.inflow}",
             f"time scales: consolidation {scales['consolidation']:.3e} "
             f"({params.to_si(scales['consolidation'], 'time'):.3e} s), Kelvin-Voigt {scales['kelvin_voigt']:.3e}; "
@@ -83,6 +86,8 @@ def _summary(run: TransientRun, backend, state: dict, config: RunConfig, setup_t
     summary["cost"] = cost_summary(device_unknowns(backend.device) if backend.method == "partitioned" else
                                    monolithic_unknowns(backend.solver), backend.comm)
     summary["transient"] = transient_summary(state, params, config.time, run.plan)
+    if run.periodic is not None:
+        summary["periodic"] = run.periodic.summary(state["rows"], params)
     if params.with_cell:
         # the model's limits over the whole run, not only at its end (e.g. the peaks of a pulsatile inflow)
         model = summary["model"]
@@ -102,9 +107,29 @@ def _say_summary(summary: dict, say, comm: MPI.Comm) -> None:
         f"{t['iterations_total']} iterations (mean {t['iterations_mean']:.2f}), "
         f"t50/t90/t99 = {_fmt(t['t50'])}/{_fmt(t['t90'])}/{_fmt(t['t99'])}, "
         f"relaxation time {_fmt(t['relaxation_time'])} (paper units)")
+    if "periodic" in summary:
+        _say_periodic(summary["periodic"], say, comm)
     prior = summary.get("coupling", {}).get("jacobian_prior")
     if prior is not None:
         say(f"coupling prior: {prior}")
+
+
+def _say_periodic(block: dict, say, comm: MPI.Comm) -> None:
+    """The periodic block's headline: cycles, the last change, the last cycle's ranges and the lag."""
+    change = "n/a" if block["change"] is None else f"{block['change']:.2e}"
+    if not block["converged"] and comm.rank == 0:
+        print(f"gelcell: warning: the response is not periodic after {block['cycles']} cycles (time.max_cycles): "
+              f"cycle-to-cycle change {change} >= periodic_tol {block['tolerance']:.1e}",
+              file=sys.stderr, flush=True)
+    last = block["per_cycle"][-1]
+    ranges = "; ".join(f"{name} {last[name]['min']:.4e}/{last[name]['mean']:.4e}/{last[name]['max']:.4e}"
+                       for name in ("cell_strain", "cell_stress", "network_displacement") if name in last)
+    lag = block["phase_lag"]
+    lag_words = "n/a" if lag is None else (f"{lag['quantity']} {lag['time']:.4e} ({lag['time_s']:.3e} s, "
+                                           f"{lag['degrees']:.1f} degrees)")
+    say(f"periodic: {'converged' if block['converged'] else 'NOT converged'} after {block['cycles']} cycles of "
+        f"{block['period']:.4e} (change {change}); last cycle min/mean/max: {ranges} (paper units); "
+        f"phase lag behind the inflow: {lag_words}")
 
 
 def _write_fields(work_dir: str, backend, state: dict, comm: MPI.Comm) -> list[str]:
@@ -138,6 +163,9 @@ def _write_results(work_dir: str, backend, state: dict, summary: dict, config: R
         from gelcell.output.drawing import draw_transient_figures      # imports matplotlib
         written += collect_figures(work_dir, data, worker)
         written += draw_transient_figures(work_dir, state["rows"], summary, config.case, comm)
+        if "periodic" in summary:
+            from gelcell.output.drawing import draw_periodic_figure
+            written += draw_periodic_figure(work_dir, state["rows"], summary["periodic"], config.case, comm)
     summary["files"] = written
     write_json(os.path.join(work_dir, "summary.json"), summary, comm)
     if comm.rank == 0:
