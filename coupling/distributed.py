@@ -40,7 +40,7 @@ import numpy as np
 from coupling.parallel import default_comm
 from coupling.participant import Participant, uses_advance
 
-__all__ = ["Distribution", "GroupParticipant", "ParticipantGroupError", "parse_distribution",
+__all__ = ["Distribution", "GroupParticipant", "ParticipantGroupError", "parse_distribution", "group_sizes",
            "DISTRIBUTION_FORMS"]
 
 #: the allowed forms of a spec string, for error messages
@@ -98,7 +98,7 @@ def _check_names(spec: str, listed: list[str], names: Iterable[str] | None) -> N
     """Every participant at most once, and (with ``names``) exactly the known ones."""
     twice = sorted({n for n in listed if listed.count(n) > 1})
     if twice:
-        raise ValueError(f"distribute = {spec!r} names {twice} more than once")
+        raise ValueError(f"distribute = {spec!r} names {twice} more than once; expected {DISTRIBUTION_FORMS}")
     if names is None:
         return
     known = list(names)
@@ -109,6 +109,11 @@ def _check_names(spec: str, listed: list[str], names: Iterable[str] | None) -> N
             ([f"unknown participants {unknown}"] if unknown else [])
             + ([f"participants {missing} are in no group"] if missing else []))
             + f"; the participants are {known}; expected {DISTRIBUTION_FORMS}")
+
+
+def group_sizes(spec: str, world_size: int, names: Iterable[str] | None = None) -> list[int]:
+    """The rank count of every group of ``spec`` on ``world_size`` ranks (ValueError if they do not fit)."""
+    return _group_sizes(spec, [c for _, c in parse_distribution(spec, names)], world_size)
 
 
 def _group_sizes(spec: str, counts: Sequence[int | None], world_size: int) -> list[int]:

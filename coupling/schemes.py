@@ -163,6 +163,9 @@ class CouplingScheme:
     def _world(self, comm: Any) -> Any:
         """The communicator the scheme runs on: ``comm``, or the distribution's world."""
         if self.distribution is None:
+            if self.config.distribute:
+                raise ValueError(f"coupling.distribute = {self.config.distribute!r}: pass build_scheme the "
+                                 f"coupling.Distribution of it and this rank's group's participants")
             return default_comm() if comm is None else comm
         if comm is not None and comm is not self.distribution.world:
             raise ValueError("build_scheme: with a distribution the scheme runs on distribution.world; "
