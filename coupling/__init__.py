@@ -34,6 +34,8 @@ from coupling.convergence import (MEASURE_ALIASES, MEASURE_FORMULAS, AbsoluteCon
                                   MeasureValue,
                                   RelativeConvergence, ResidualRelativeConvergence, build_measure,
                                   measure_type)
+from coupling.distributed import (DISTRIBUTION_FORMS, Distribution, GroupParticipant, ParticipantGroupError,
+                                  group_sizes, parse_distribution)
 from coupling.errors import CouplingDivergedError, CouplingError, CouplingNotConvergedError
 from coupling.extrapolation import lagrange_weights
 from coupling.layout import VectorLayout
@@ -70,6 +72,8 @@ __all__ = [
     "Mapping", "build_mapping", "order_along_curve", "polyline_interpolation_matrix",
     "SURFACE_MAPPINGS", "surface_interpolation_matrix", "surface_mapping_matrix", "surface_mass_matrix",
     "SerialComm", "default_comm", "gather_rows", "scatter_rows",
+    "Distribution", "GroupParticipant", "ParticipantGroupError", "parse_distribution", "group_sizes",
+    "DISTRIBUTION_FORMS",
     # errors, records, replay, files
     "CouplingError", "CouplingDivergedError", "CouplingNotConvergedError",
     "CouplingResult", "IterationRecord", "WindowRecord", "Recording", "RecordedSolve",

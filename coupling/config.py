@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 from coupling.convergence import MEASURE_FORMULAS, measure_type
+from coupling.distributed import DISTRIBUTION_FORMS, parse_distribution
 
 __all__ = [
     "SCHEMES", "STATE_RELOADS", "ACCEPTED_VALUES", "ACCELERATIONS", "FILTERS", "PRECONDITIONERS", "MEASURES",
@@ -410,6 +411,12 @@ class CouplingConfig:
             residual in a window accepted unconverged (``on_max_iterations =
             "continue"``).  Forward data (serial schemes) are the last written
             values either way.
+        distribute: The participants' process groups,
+            ``"name[+name...][:ranks],..."`` (:mod:`coupling.distributed`);
+            ``""`` (default): every participant on every rank.  The
+            application builds the :class:`~coupling.distributed.Distribution`
+            from it, constructs its group's participants and passes both to
+            :func:`~coupling.schemes.build_scheme`.
     """
 
     scheme: str = "serial-implicit"
@@ -427,9 +434,17 @@ class CouplingConfig:
     # "window" took as many or more iterations, and diverged with reused windows (docs/coupling-study.md)
     state_reload: str = "iteration"
     accepted_value: str = "output"
+    distribute: str = ""
 
     def __post_init__(self) -> None:
         where = "coupling"
+        if not isinstance(self.distribute, str):
+            raise ValueError(f"{where}.distribute = {self.distribute!r} must be a string: {DISTRIBUTION_FORMS}")
+        if self.distribute:
+            try:
+                parse_distribution(self.distribute)   # the form; the names and ranks: Distribution
+            except ValueError as exc:
+                raise ValueError(f"{where}.{exc}") from None
         _choice(where, "state_reload", self.state_reload, STATE_RELOADS)
         _choice(where, "accepted_value", self.accepted_value, ACCEPTED_VALUES)
         _integer(where, "extrapolation_order", self.extrapolation_order, minimum=0)

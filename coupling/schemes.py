@@ -37,7 +37,10 @@ or if ``‖r_k‖ > divergence_factor * max(‖r_1‖, 1e-6 ‖x̃_1‖)`` for a
 
 MPI: all arrays are replicated on every rank; after each iteration the next
 iterate and the decision (continue, converged, diverged) are broadcast from
-rank 0 so that every rank takes the same decision.
+rank 0 so that every rank takes the same decision.  With a ``distribution``
+(:mod:`coupling.distributed`) each participant runs in its own process
+group and its outputs are broadcast from there; a parallel scheme solves
+all groups before it exchanges their outputs.
 """
 
 from __future__ import annotations
@@ -56,6 +59,7 @@ import numpy as np
 from coupling.acceleration import Acceleration, build_acceleration
 from coupling.config import CouplingConfig, load_config
 from coupling.convergence import ConvergenceMeasure, MeasureValue, build_measure
+from coupling.distributed import Distribution, GroupParticipant, ParticipantGroupError
 from coupling.errors import CouplingDivergedError, CouplingNotConvergedError
 from coupling.extrapolation import lagrange_weights
 from coupling.layout import VectorLayout
@@ -94,6 +98,10 @@ class CouplingScheme:
             scheme that returns one (for a surrogate that needs the scheme's
             points and layout, e.g. :meth:`coupling.CoarseSurrogate.on_surfaces`).
             Its prediction, if any, is given with :meth:`set_values`.
+        distribution: Participants in separate process groups
+            (:class:`coupling.distributed.Distribution`): ``participants``
+            are then this rank's group's only, and the scheme runs on
+            ``distribution.world`` (``comm`` must be it or ``None``).
 
     Attributes:
         config: The validated configuration.
@@ -116,15 +124,19 @@ class CouplingScheme:
     def __init__(self, config: CouplingConfig | Mapping[str, Any],
                  participants: Sequence[Participant] | Mapping[str, Participant],
                  data: Sequence[Data], comm: Any = None, stream: TextIO | None = None,
-                 surrogate: Any = None):
+                 surrogate: Any = None, distribution: Distribution | None = None):
         if isinstance(config, Mapping) and "scheme" not in config:
             config = {**config, "scheme": self.scheme_name}
         self.config = load_config(config)
         if self.config.scheme != self.scheme_name:
             raise ValueError(f"coupling.scheme = {self.config.scheme!r} does not match "
                              f"{type(self).__name__} ({self.scheme_name!r}); use build_scheme()")
-        self.comm = default_comm() if comm is None else comm
+        self.distribution = distribution
+        self.comm = self._world(comm)
         self._stream = stream
+        if distribution is not None:
+            participants = distribution.wrap(self._check_participants(participants).values(),
+                                             self.config.check_replicated)
         self.participants = self._check_participants(participants)
         self.order = self._check_order()
         self.data = self._check_data(data)
@@ -150,6 +162,18 @@ class CouplingScheme:
         self._initialized = False      # initialize() called, finalize() not yet
 
     # ------------------------------------------------------------------ setup checks
+    def _world(self, comm: Any) -> Any:
+        """The communicator the scheme runs on: ``comm``, or the distribution's world."""
+        if self.distribution is None:
+            if self.config.distribute:
+                raise ValueError(f"coupling.distribute = {self.config.distribute!r}: pass build_scheme the "
+                                 f"coupling.Distribution of it and this rank's group's participants")
+            return default_comm() if comm is None else comm
+        if comm is not None and comm is not self.distribution.world:
+            raise ValueError("build_scheme: with a distribution the scheme runs on distribution.world; "
+                             "pass comm=None or that communicator")
+        return self.distribution.world
+
     def _check_participants(self, participants: Any) -> dict[str, Participant]:
         items = list(participants.values()) if isinstance(participants, Mapping) else list(participants)
         if not items:
@@ -343,19 +367,33 @@ class CouplingScheme:
     def _solve_participant(self, name: str, window: int, iteration: int, t: float | None,
                            dt: float | None, states: dict[str, Any],
                            solve_time: dict[str, float]) -> dict[str, np.ndarray]:
-        if t is not None:
-            if self.implicit and iteration > 1 and self.config.state_reload == "iteration":
-                self._call(name, "load_state", states[name])
-            if uses_advance(self.participants[name]):    # the earlier protocol: before every solve
-                self._call(name, "advance", t, dt)
-        inputs = {d: self._mappings[(d, name)](self.values[d]) for d in self._reads[name]}
-        recorded_inputs = {k: v.copy() for k, v in inputs.items()} if self.recording else None
+        inputs = self._participant_inputs(name, iteration, t, dt, states)
         start = _time.perf_counter()
         try:
             raw = self.participants[name].solve(inputs)
         except Exception as exc:  # noqa: BLE001  (any solver failure ends the coupling cleanly)
             raise _ParticipantFailure(name, iteration, exc) from exc
-        solve_time[name] = _time.perf_counter() - start
+        # distributed: the owner group's time, the same on every rank
+        participant = self.participants[name]
+        solve_time[name] = (participant.elapsed if isinstance(participant, GroupParticipant)
+                            else _time.perf_counter() - start)
+        return self._participant_outputs(name, window, iteration, t, dt, inputs, raw)
+
+    def _participant_inputs(self, name: str, iteration: int, t: float | None, dt: float | None,
+                            states: dict[str, Any]) -> dict[str, np.ndarray]:
+        """Restore ``name``'s window state where needed and return its inputs on its points."""
+        if t is not None:
+            if self.implicit and iteration > 1 and self.config.state_reload == "iteration":
+                self._call(name, "load_state", states[name])
+            if uses_advance(self.participants[name]):    # the earlier protocol: before every solve
+                self._call(name, "advance", t, dt)
+        return {d: self._mappings[(d, name)](self.values[d]) for d in self._reads[name]}
+
+    def _participant_outputs(self, name: str, window: int, iteration: int, t: float | None,
+                             dt: float | None, inputs: dict[str, np.ndarray],
+                             raw: Any) -> dict[str, np.ndarray]:
+        """Check what ``name``'s solve returned and record it; its outputs as data arrays."""
+        recorded_inputs = {k: v.copy() for k, v in inputs.items()} if self.recording else None
         if not isinstance(raw, Mapping):
             raise TypeError(f"participant {name!r}: solve() must return a dict data name -> array, "
                             f"got {type(raw).__name__}")
@@ -365,7 +403,7 @@ class CouplingScheme:
                              f"return exactly the data it writes: {sorted(expected)}")
         outputs = {d: self._as_data_array(d, raw[d], f"participant {name!r}: solve()")
                    for d in self._writes[name]}
-        if self.config.check_replicated:
+        if self.config.check_replicated and self.distribution is None:   # distributed: in the group
             self._check_replicated(name, outputs)
         if self.recording is not None:
             self.recording.add(RecordedSolve(window, iteration, name, t, dt, recorded_inputs, outputs))
@@ -374,7 +412,9 @@ class CouplingScheme:
     def _sweep(self, window: int, iteration: int, t: float | None, dt: float | None,
                states: dict[str, Any]) -> dict[str, float]:
         solve_time: dict[str, float] = {}
-        if self.serial:
+        if self.distribution is not None and not self.serial:
+            self.values.update(self._concurrent_sweep(window, iteration, t, dt, states, solve_time))
+        elif self.serial:
             for name in self.order:
                 outputs = self._solve_participant(name, window, iteration, t, dt, states, solve_time)
                 self.values.update(outputs)
@@ -385,6 +425,28 @@ class CouplingScheme:
                                                           solve_time))
             self.values.update(new_values)
         return solve_time
+
+    def _concurrent_sweep(self, window: int, iteration: int, t: float | None, dt: float | None,
+                          states: dict[str, Any], solve_time: dict[str, float]) -> dict[str, np.ndarray]:
+        """A parallel sweep of distributed participants: every group solves its own from the same
+        values, and only then are the outputs exchanged (so the groups compute at the same time)."""
+        proxies: dict[str, GroupParticipant] = self.participants       # type: ignore[assignment]
+        inputs = {name: self._participant_inputs(name, iteration, t, dt, states) for name in self.order}
+        for name in self.order:
+            proxies[name].start(inputs[name])
+        new_values: dict[str, np.ndarray] = {}
+        failure: _ParticipantFailure | None = None
+        for name in self.order:                 # every rank takes part in every exchange
+            try:
+                raw = proxies[name].finish()
+            except ParticipantGroupError as exc:
+                failure = failure or _ParticipantFailure(name, iteration, exc)
+                continue
+            solve_time[name] = proxies[name].elapsed
+            new_values.update(self._participant_outputs(name, window, iteration, t, dt, inputs[name], raw))
+        if failure is not None:
+            raise failure
+        return new_values
 
     # ------------------------------------------------------------------ one window
     def _measure_values(self, evals: list[MeasureValue], rnorm: dict[str, float],
@@ -1050,7 +1112,8 @@ def _scale_acceleration_state(state: dict[str, Any], layout: VectorLayout,
 def build_scheme(config: CouplingConfig | Mapping[str, Any],
                  participants: Sequence[Participant] | Mapping[str, Participant],
                  data: Sequence[Data], comm: Any = None,
-                 stream: TextIO | None = None, surrogate: Any = None) -> CouplingScheme:
+                 stream: TextIO | None = None, surrogate: Any = None,
+                 distribution: Distribution | None = None) -> CouplingScheme:
     """Create the scheme named by ``config.scheme``.
 
     Args:
@@ -1061,6 +1124,9 @@ def build_scheme(config: CouplingConfig | Mapping[str, Any],
         stream: Destination of the progress lines (default ``sys.stdout``).
         surrogate: Optional surrogate model for the quasi-Newton prior
             (see :class:`CouplingScheme`).
+        distribution: Participants in separate process groups
+            (:class:`coupling.distributed.Distribution`); ``participants``
+            are then this rank's group's (see :class:`CouplingScheme`).
 
     Returns:
         A :class:`CouplingScheme` subclass instance.
@@ -1074,4 +1140,5 @@ def build_scheme(config: CouplingConfig | Mapping[str, Any],
         result = scheme.solve()
     """
     cfg = load_config(config)
-    return _SCHEMES[cfg.scheme](cfg, participants, data, comm=comm, stream=stream, surrogate=surrogate)
+    return _SCHEMES[cfg.scheme](cfg, participants, data, comm=comm, stream=stream, surrogate=surrogate,
+                                distribution=distribution)

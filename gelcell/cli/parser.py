@@ -101,6 +101,7 @@ OPTION_KEYS: dict[str, tuple[str, typing.Callable]] = {
     "scheme": ("coupling.scheme", lambda s: f"{s}-implicit" if s in ("serial", "parallel") else s),
     "acceleration": ("coupling.acceleration.type", str),
     "jacobian_prior": ("coupling.acceleration.jacobian_prior", str),
+    "distribute": ("coupling.distribute", str),
     "quiet": ("output.progress", lambda on: not on),
     "no_figures": ("output.figures", lambda on: not on),
     "compare_no_cell": ("output.compare_no_cell", bool),
@@ -204,6 +205,10 @@ def _add_solver_arguments(p: argparse.ArgumentParser) -> None:
                         "(mesh-size >= ~0.7), none otherwise (docs/coupling.md); time-dependent runs factorise it "
                         "per step size and scheme, not cached on disk (docs/transient.md) "
                         "(coupling.acceleration.jacobian_prior)")
+    g.add_argument("--distribute", metavar="GROUPS", default=None,
+                   help="participants in separate MPI process groups: 'name[+name...][:ranks],...', e.g. "
+                        "'fluid:1,gel+cell:1' on 2 ranks (ranks omitted: the ranks left split evenly); "
+                        "checked before meshing; the run itself: gelcell.coupled.Device (coupling.distribute)")
     g.add_argument("--solver", choices=SOLVER_KINDS, default=None,
                    help="the field solvers' linear solves: direct (MUMPS; default), iterative (Krylov with "
                         "multigrid, femtools.krylov) or auto (direct in 2D and for small 3D fields, iterative "

@@ -233,7 +233,7 @@ def _with_overrides(config: dict, overrides: typing.Mapping, transient: bool = F
 
 
 def partitioned_config(params: CaseParameters, coupling: typing.Mapping | None = None, transient: bool = False,
-                       gamma2: str = DEFAULT_GAMMA2) -> dict:
+                       gamma2: str = DEFAULT_GAMMA2, ranks: int | None = None) -> dict:
     """The ``[coupling]`` table of a partitioned run: the device's defaults, then ``coupling`` on top, validated.
 
     ``coupling`` (a case file's table, with the command line's keys already in
@@ -241,7 +241,8 @@ def partitioned_config(params: CaseParameters, coupling: typing.Mapping | None =
     acceleration (``acceleration.type``, default ``"iqn-ils"``, ``"none"`` for
     an explicit scheme), whose defaults the rest of the table then overrides.
     Raises :class:`ParameterError` naming the bad key or value, before
-    anything is meshed.
+    anything is meshed; ``ranks``: the run's MPI ranks, which ``distribute``
+    must fit.
     """
     params = described(params)
     table = dict(coupling or {})
@@ -257,7 +258,37 @@ def partitioned_config(params: CaseParameters, coupling: typing.Mapping | None =
     except ValueError as exc:
         raise ParameterError(f"the [coupling] table is invalid: {exc}") from None
     _check_order(loaded.order, params.with_cell)
+    _check_distribute(loaded.distribute, params.with_cell, ranks)
     return config
+
+
+def _participant_names(with_cell: bool) -> list[str]:
+    return ["fluid", "gel", "cell"] if with_cell else ["fluid", "gel"]
+
+
+def _check_distribute(spec: str, with_cell: bool, ranks: int | None = None) -> None:
+    """``[coupling] distribute``, if given, puts each participant of the device in one group and (with
+    ``ranks``) fits that many ranks (ParameterError naming the key and the allowed forms if not)."""
+    if not spec:
+        return
+    try:
+        cp.parse_distribution(spec, _participant_names(with_cell))
+        if ranks is not None:
+            cp.group_sizes(spec, ranks)
+    except ValueError as exc:
+        raise ParameterError(f"the [coupling] table is invalid: coupling.{exc}") from None
+
+
+def device_distribution(spec: str | None, params: CaseParameters, comm: typing.Any) -> cp.Distribution | None:
+    """The process groups of ``[coupling] distribute`` on ``comm`` (None for none): ParameterError, before
+    anything is meshed, if the spec is malformed, misses or repeats a field, or does not fit the ranks."""
+    if not spec:
+        return None
+    _check_distribute(spec, params.with_cell, comm.Get_size())
+    try:
+        return cp.Distribution(spec, comm, names=_participant_names(params.with_cell))
+    except ValueError as exc:
+        raise ParameterError(f"the [coupling] table is invalid: coupling.{exc}") from None
 
 
 def _check_order(order: typing.Sequence[str], with_cell: bool) -> None:

@@ -28,7 +28,8 @@ from gelcell.coupled import priorcache
 from gelcell.coupled.data import coupling_data, extensive_data
 from gelcell.coupled import solverchoice
 from gelcell.coupled.defaults import (AUTO_PRIOR_MAX_UNKNOWNS, TRANSIENT_PRIOR, coupling_config,
-                                      default_gamma2_coefficient, default_robin_coefficient)
+                                      default_gamma2_coefficient, default_robin_coefficient,
+                                      device_distribution)
 from gelcell.coupled.participants import CellParticipant, FluidParticipant, GelParticipant, MovingFluidParticipant
 from gelcell.geometry import described
 from gelcell.geometry.meshes import build_meshes
@@ -55,13 +56,21 @@ class Device:
             ``"auto"`` (:mod:`gelcell.coupled.solverchoice`; what each field
             got: :attr:`solver_kinds`); ``petsc_options``: ``{field: {option:
             value}}``, PETSc options of one field's solver.
+        distribute: participants in separate process groups of ``comm``
+            (``[coupling] distribute``, e.g. ``"fluid:1,gel+cell:1"``;
+            :mod:`coupling.distributed`): each group meshes every region on
+            its own communicator (the simpler choice: meshing is cheap next
+            to the solves) and builds only its fields' solvers; the others
+            are ``None`` on its ranks.  ``None`` or ``""``: every field on
+            every rank.
     """
 
     def __init__(self, params: CaseParameters, comm: MPI.Comm = MPI.COMM_WORLD,
                  robin_coefficient: float | None = None, gamma2: str = DEFAULT_GAMMA2,
                  transient: bool = False, time_scheme: str = "be",
                  inflow: typing.Callable[[float], float] | None = None, solver: str = "direct",
-                 petsc_options: typing.Mapping[str, typing.Mapping] | None = None):
+                 petsc_options: typing.Mapping[str, typing.Mapping] | None = None,
+                 distribute: str | None = None):
         t0 = time.perf_counter()
         params = described(params)
         params.validate()
@@ -69,7 +78,10 @@ class Device:
         self.transient = bool(transient)
         self.kinematics = params.kinematics
         self._set_coefficients(robin_coefficient, gamma2)
-        self.meshes = build_meshes(params, comm)
+        #: the process groups of the participants (None: every field on every rank)
+        self.distribution = device_distribution(distribute, params, comm)
+        self.group_comm = comm if self.distribution is None else self.distribution.group_comm
+        self.meshes = build_meshes(params, self.group_comm)
         self.layout = self.meshes.layout
         self.boundaries = self.layout.boundaries
         self.mesh_time = time.perf_counter() - t0
@@ -79,12 +91,13 @@ class Device:
         user = dict(petsc_options or {})
         # time-dependent runs keep PETSc's automatic choices (STEADY_SOLVER_OPTIONS: steady direct solves)
         options = {f: solverchoice.field_options(k, self.transient, user.get(f)) for f, k in self.solver_kinds.items()}
-        self.fluid = self._fluid_solver(options["fluid"])
-        self.gel = self._gel_solver(options["gel"])
-        self.cell = self._cell_solver(options["cell"]) if params.with_cell else None
+        self.fluid = self._fluid_solver(options["fluid"]) if self.is_local("fluid") else None
+        self.gel = self._gel_solver(options["gel"]) if self.is_local("gel") else None
+        self.cell = self._cell_solver(options["cell"]) if params.with_cell and self.is_local("cell") else None
         self.setup_time = time.perf_counter() - t0
         self.participants = self._participants(time_scheme, inflow)
-        self.data = coupling_data(self.boundaries, gamma2, self.kinematics, dim=self.fluid.mesh.geometry.dim)
+        dim = self.meshes.region("fluid")[0].geometry.dim
+        self.data = coupling_data(self.boundaries, gamma2, self.kinematics, dim=dim)
         self.scheme: cp.CouplingScheme | None = None
         self.result: cp.CouplingResult | None = None
         #: where the last solve's prior came from: "computed", "disk cache", "reused" (its linearized
@@ -92,6 +105,14 @@ class Device:
         self.prior_source: str | None = None
         #: why the default went without its linearized prior (None: it did not)
         self.prior_declined: str | None = None
+
+    def is_local(self, field: str) -> bool:
+        """Whether ``field``'s solver runs on this rank (always, unless the device is distributed)."""
+        return self.distribution is None or self.distribution.is_local(field)
+
+    def _from_field(self, field: str, compute: typing.Callable[[], typing.Any]) -> typing.Any:
+        """``compute()`` on the ranks of ``field``'s solver, its result on every rank."""
+        return compute() if self.distribution is None else self.distribution.from_owner(field, compute)
 
     def _set_coefficients(self, robin_coefficient: float | None, gamma2: str) -> None:
         """The Robin coefficients on Gamma1/3 (alpha_n, alpha_t) and the split on Gamma2 with its kappa."""
@@ -160,12 +181,16 @@ class Device:
         """The coupling participants: fluid, gel and (with a cell) the cell."""
         b = self.boundaries
         fluid_participant = MovingFluidParticipant if self.kinematics == "finite" else FluidParticipant
-        participants = [fluid_participant(self.fluid, b.fluid_interfaces, self.alpha_n, self.alpha_t, inflow),
-                        GelParticipant(self.gel, b.fluid_interfaces, b.cell_interfaces, self.gamma2,
-                                       time_scheme)]
+        participants = []
+        if self.fluid is not None:
+            participants.append(fluid_participant(self.fluid, b.fluid_interfaces, self.alpha_n, self.alpha_t,
+                                                  inflow))
+        if self.gel is not None:
+            participants.append(GelParticipant(self.gel, b.fluid_interfaces, b.cell_interfaces, self.gamma2,
+                                               time_scheme))
+        if self.params.with_cell and self.gamma2 == "schur":
+            self._condense_cell()
         if self.cell is not None:
-            if self.gamma2 == "schur":
-                self._condense_cell()
             participants.append(CellParticipant(self.cell, b.cell_interfaces, self.gamma2))
         return participants
 
@@ -174,12 +199,17 @@ class Device:
         t0 = time.perf_counter()
         stiffnesses = {}
         for g in self.boundaries.cell_interfaces:
-            K = self.cell.interface_stiffness(g)
+            # distributed: from the cell's ranks to the gel's (collective on every rank)
+            K, cell_points = self._from_field("cell", lambda g=g: (self.cell.interface_stiffness(g),
+                                                                   self.cell.interface_points(g)))
+            if self.gel is None:
+                continue
             # the gel's node order (the data's "matching" mapping): P K P^T, P per component
-            P = cp.build_mapping("matching", self.cell.interface_points(g), self.gel.interface_points(g)).matrix
+            P = cp.build_mapping("matching", cell_points, self.gel.interface_points(g)).matrix
             P2 = np.kron(P.toarray(), np.eye(self.gel.mesh.geometry.dim))
             stiffnesses[g] = P2 @ K @ P2.T
-        self.gel.set_interface_stiffnesses(stiffnesses)
+        if self.gel is not None:
+            self.gel.set_interface_stiffnesses(stiffnesses)
         self.setup_time += time.perf_counter() - t0
 
     def _choose_solve_paths(self, config: typing.Mapping, exact: bool = False) -> None:
@@ -262,18 +292,25 @@ class Device:
         """Build ``self.scheme`` under the default prior where it pays, else ``config``; return the one used."""
         self.prior_declined = None
         if surrogate is not None:
-            self.scheme = cp.build_scheme(config, self.participants, self.data, comm=self.comm, surrogate=surrogate)
+            self.scheme = self._new_scheme(config, surrogate)
             self._choose_solve_paths(config, exact=True)
             return config
         chosen = self._default_prior(config)
-        self.scheme = cp.build_scheme(chosen, self.participants, self.data, comm=self.comm)
+        self.scheme = self._new_scheme(chosen)
         if chosen is not config and not self._prior_pays(self.scheme.layout.size):
             chosen = config                             # the plain secant model
             self.prior_declined = (f"{self.scheme.layout.size} interface unknowns; the default's dense "
                                    f"linearized prior pays up to {AUTO_PRIOR_MAX_UNKNOWNS}")
-            self.scheme = cp.build_scheme(chosen, self.participants, self.data, comm=self.comm)
+            self.scheme = self._new_scheme(chosen)
         self._choose_solve_paths(chosen)
         return chosen
+
+    def _new_scheme(self, config: dict, surrogate: typing.Any = None) -> cp.CouplingScheme:
+        """The coupling scheme of ``config`` over this device's participants (on every rank)."""
+        if self.distribution is None:
+            return cp.build_scheme(config, self.participants, self.data, comm=self.comm, surrogate=surrogate)
+        return cp.build_scheme(config, self.participants, self.data, distribution=self.distribution,
+                               surrogate=surrogate)
 
     def window_scheme(self, config: typing.Mapping) -> tuple[dict, cp.CouplingScheme]:
         """The coupling of a time-dependent run's windows and its configuration.
