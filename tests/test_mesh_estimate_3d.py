@@ -76,3 +76,33 @@ def test_the_cli_refuses_a_3d_mesh_that_does_not_fit(shared_tmp_path, cli_stderr
     assert code == 4, err                   # exit 4: the model's limits (about 6 TB)
     assert "--mesh-size 0.25 would make about" in err and "choose --mesh-size" in err, err
     assert not out.exists()
+
+
+def test_the_iterative_path_is_estimated_by_its_own_law():
+    params = _params_3d("shear", 1.0)
+    direct, iterative = (estimate_mesh(params, s)["memory_bytes"] for s in ("direct", "iterative"))
+    assert iterative < direct             # no factorisation: no N^(4/3) fill
+    memory = int(0.5 * (iterative + direct) / validity.MEMORY_SHARE)   # fits the iterative path only
+    check_mesh_size(params, memory=memory, solver="iterative")
+    with pytest.raises(ModelLimitError, match=r"choose --mesh-size [0-9.]+ or larger, or --solver iterative "
+                                              r"\(about [0-9.]+ GiB\)"):
+        check_mesh_size(params, memory=memory)
+    with pytest.raises(ModelLimitError, match=r"GiB with the iterative solvers; this machine"):
+        check_mesh_size(params, memory=int(0.5 * iterative / validity.MEMORY_SHARE), solver="iterative")
+
+
+def test_an_iterative_3d_run_that_fits_is_not_refused(monkeypatch):
+    class Meshing(Exception):
+        pass
+
+    def meshing(*args, **kwargs):
+        raise Meshing
+
+    params = _params_3d("shear", 1.0)
+    direct, iterative = (estimate_mesh(params, s)["memory_bytes"] for s in ("direct", "iterative"))
+    monkeypatch.setattr(meshes, "_mesh_with_gmsh", meshing)
+    monkeypatch.setattr(validity, "machine_memory", lambda: int(0.5 * (iterative + direct) / validity.MEMORY_SHARE))
+    with pytest.raises(ModelLimitError, match="or --solver iterative"):
+        solve_partitioned(params, checks=False, verbose=False)
+    with pytest.raises(RuntimeError, match="Meshing"):    # past the check, into meshing
+        solve_partitioned(params, checks=False, verbose=False, solver="iterative")

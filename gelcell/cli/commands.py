@@ -51,16 +51,17 @@ def _inputs(cases, config: RunConfig | None = None, config_file: str | None = No
     return inputs
 
 
-def _check_before_meshing(cases, out: str, partial: bool = False, inputs=()) -> None:
+def _check_before_meshing(cases, out: str, partial: bool = False, inputs=(), solver: str = "direct") -> None:
     """Model limits of every case, then the output directory (raise before anything is meshed).
 
-    ``inputs`` (:func:`_inputs`): the files the run reads, none of which may lie in ``out``.
+    ``inputs`` (:func:`_inputs`): the files the run reads, none of which may lie in ``out``;
+    ``solver``: the fields' solvers (``[solver] kind``), whose memory the mesh must fit.
     """
     from femtools.io import check_output_target
     from gelcell.post.validity import check_case
     cases = list(cases)
     for params in cases:
-        check_case(params)
+        check_case(params, solver)
     check_output_target(out, MPI.COMM_WORLD, partial, inputs)
 
 
@@ -156,7 +157,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     transient = config.time.transient
     _check_coupling(config, transient)
     _check_before_meshing([config.case], args.out, partial=transient,
-                          inputs=_inputs([config.case], config, args.config))
+                          inputs=_inputs([config.case], config, args.config), solver=config.solver.kind)
     if transient:
         from gelcell.run.transient_case import run_transient_case
         run_transient_case(config, args.out, comm=MPI.COMM_WORLD)
@@ -203,7 +204,7 @@ def cmd_resume(args: argparse.Namespace) -> int:
     config = resolve(tables, {k: v for k, v in keys.items() if k.startswith("output.")}, source=source)
     check_checkpoint(args.resume, MPI.COMM_WORLD)
     _check_before_meshing([config.case], args.resume, partial=True,
-                          inputs=_inputs([config.case], config, args.config))
+                          inputs=_inputs([config.case], config, args.config), solver=config.solver.kind)
     run_transient_case(config, args.resume, comm=MPI.COMM_WORLD, resume=True)
     return 0
 
@@ -214,7 +215,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from gelcell.run.sweep import run_sweep, sweep_cases
     cases = sweep_cases(config)                     # every value validated first
     _check_coupling(config)
-    _check_before_meshing(cases, args.out, inputs=_inputs(cases, config, args.config))
+    _check_before_meshing(cases, args.out, inputs=_inputs(cases, config, args.config), solver=config.solver.kind)
     run_sweep(config, args.out, comm=MPI.COMM_WORLD, debug=args.debug)
     return 0
 

@@ -124,7 +124,7 @@ def _band_elements(length: float, sides: int, size: float, band: float, far: flo
     return sides * length * (uniform + graded)
 
 
-def estimate_mesh(params: CaseParameters) -> dict:
+def estimate_mesh(params: CaseParameters, solver: str = "direct") -> dict:
     """Estimated element count of the device mesh (fluid + gel + cell) from its size field.
 
     The far field holds area / (sqrt(3)/4 h^2) elements; each refinement band
@@ -132,10 +132,11 @@ def estimate_mesh(params: CaseParameters) -> dict:
     on the gel's side) adds its uniform part and the graded part that grows to the
     far-field size.  Against the meshes of both devices at size factors 3 to 0.5
     it is within 20 %.  Returns the element count and the memory a run needs.
-    A 3D device (a geometry with ``chip_height``): :func:`estimate_mesh_3d`.
+    A 3D device (a geometry with ``chip_height``): :func:`estimate_mesh_3d`.  The 2D memory law is
+    the direct solvers' for every ``solver`` (an upper bound for the iterative path).
     """
     if getattr(params.geometry, "dimension", 2) == 3:
-        return estimate_mesh_3d(params)
+        return estimate_mesh_3d(params, solver)
     h = params.element_sizes()
     m = closed_form_measures(params)
     far = max(h["h_fluid"], h["h_gel"])
@@ -172,6 +173,11 @@ _BAND_POINTS, _HEIGHT_POINTS = 201, 101
 BASE_MEMORY_3D = 0.25e9
 MEMORY_LINEAR_3D = 3.7e4
 MEMORY_FILL_3D = 2.6e3
+#: Peak memory of a 3D run on the iterative path (``--solver iterative``: Krylov solvers with algebraic
+#: multigrid, no factorisation): BASE_MEMORY_3D + MEMORY_ITERATIVE_3D N bytes for N tetrahedra, fitted
+#: to the iterative runs of docs/performance.md ("3D devices").  ``auto`` is estimated by the direct law,
+#: an upper bound (its fields of more than 100 000 unknowns go iterative).
+MEMORY_ITERATIVE_3D = 4.0e4
 
 
 def _graded_size(distance, size: float, band: float, far: float, growth: float):
@@ -214,7 +220,7 @@ def _cell_band(r: float, zc: float, share: float, height, beneath, sizes: tuple)
     return share * np.trapz(2.0 * math.pi * rho[:, 0] * np.trapz(extra, height), d)
 
 
-def estimate_mesh_3d(params: CaseParameters) -> dict:
+def estimate_mesh_3d(params: CaseParameters, solver: str = "direct") -> dict:
     """Estimated tetrahedra of a 3D device mesh (fluid + gel + cells) from the size fields of
     :mod:`gelcell.geometry.builtin_model3d`, before gmsh runs.
 
@@ -228,7 +234,8 @@ def estimate_mesh_3d(params: CaseParameters) -> dict:
     over distance and height.  Against gmsh's meshes of both devices (chip
     height 0.4) it is within 11 % with no-slip walls (size factors 5 to 1) and
     17 % with symmetric ones (3 and 2).  Returns the element count and the
-    memory a run needs (direct solvers).
+    memory a run needs with ``solver`` (``[solver] kind``: the direct law for
+    "direct" and "auto", the iterative law for "iterative").
     """
     h = params.element_sizes()
     m = closed_form_measures_3d(params)
@@ -250,10 +257,12 @@ def estimate_mesh_3d(params: CaseParameters) -> dict:
             share = 0.5 if params.case == "normal" and g.on_symmetry_line(y) else 1.0
             count += _cell_band(0.5 * d, z, share, height, floor, (h["h_cell"], h["cell_band"], hg, grow))
     count *= GMSH_TETRAHEDRA
-    return {"elements": count, "memory_bytes": _memory_3d(count)}
+    return {"elements": count, "memory_bytes": _memory_3d(count, solver)}
 
 
-def _memory_3d(elements: float) -> float:
+def _memory_3d(elements: float, solver: str = "direct") -> float:
+    if solver == "iterative":
+        return BASE_MEMORY_3D + MEMORY_ITERATIVE_3D * elements
     return BASE_MEMORY_3D + MEMORY_LINEAR_3D * elements + MEMORY_FILL_3D * elements ** (4.0 / 3.0)
 
 
@@ -263,15 +272,11 @@ def _round_up(size: float) -> float:
     return math.ceil(size / scale - 1e-9) * scale
 
 
-#: the memory law of a geometry file's mesh by its dimension
-_FILE_MEMORY = {2: _memory, 3: _memory_3d}
-
-
-def check_mesh_size(params: CaseParameters, memory: int | None = None) -> dict:
-    """Raise :class:`ModelLimitError` if the estimated mesh does not fit in ``memory``."""
-    est = estimate_mesh(params)
+def check_mesh_size(params: CaseParameters, memory: int | None = None, solver: str = "direct") -> dict:
+    """Raise :class:`ModelLimitError` if the estimated mesh does not fit in ``memory`` with ``solver``."""
+    est = estimate_mesh(params, solver)
     memory = machine_memory() if memory is None else memory
-    fits = lambda p: estimate_mesh(p)["memory_bytes"] <= MEMORY_SHARE * memory   # noqa: E731
+    fits = lambda p: estimate_mesh(p, solver)["memory_bytes"] <= MEMORY_SHARE * memory   # noqa: E731
     if not fits(params):
         coarsest = params.mesh.n_cell_edges / params.mesh.MIN_CELL_EDGES
         if not fits(params.with_mesh_size(coarsest)):
@@ -283,12 +288,25 @@ def check_mesh_size(params: CaseParameters, memory: int | None = None) -> dict:
             lo, hi = (lo, mid) if fits(params.with_mesh_size(mid)) else (mid, hi)
         raise ModelLimitError(
             f"--mesh-size {params.mesh.size_factor:g} would make about {est['elements']:.2g} elements, "
-            f"which need about {est['memory_bytes'] / 2**30:.3g} GiB; this machine has "
-            f"{memory / 2**30:.3g} GiB: choose --mesh-size {_round_up(hi):g} or larger")
+            f"which need about {est['memory_bytes'] / 2**30:.3g} GiB{_with(solver)}; this machine has "
+            f"{memory / 2**30:.3g} GiB: choose --mesh-size {_round_up(hi):g} or larger"
+            f"{_iterative_hint(params, solver, memory)}")
     return est
 
 
-def estimate_file_mesh(params: CaseParameters) -> dict:
+def _with(solver: str) -> str:
+    return " with the iterative solvers" if solver == "iterative" else ""
+
+
+def _iterative_hint(params: CaseParameters, solver: str, memory: int) -> str:
+    """``, or --solver iterative (about X GiB)`` where a 3D direct run is refused and the iterative one fits."""
+    if solver == "iterative" or getattr(params.geometry, "dimension", 2) != 3:
+        return ""
+    need = estimate_mesh(params, "iterative")["memory_bytes"]
+    return f", or --solver iterative (about {need / 2**30:.3g} GiB)" if need <= MEMORY_SHARE * memory else ""
+
+
+def estimate_file_mesh(params: CaseParameters, solver: str = "direct") -> dict:
     """Estimated element count of a geometry file's mesh, from the sizes the file gives.
 
     A ``.msh`` file's count is its own.  For a ``.geo`` file gmsh makes coarse
@@ -302,12 +320,17 @@ def estimate_file_mesh(params: CaseParameters) -> dict:
     count = estimated_elements(params.geometry.file, params.mesh.size_factor)
     if count is None:
         return {"elements": None, "memory_bytes": None, "dimension": dim}
-    return {"elements": count, "memory_bytes": _FILE_MEMORY[dim](count), "dimension": dim}
+    return {"elements": count, "memory_bytes": _file_memory(dim, solver)(count), "dimension": dim}
 
 
-def check_file_mesh_size(params: CaseParameters, memory: int | None = None) -> dict:
+def _file_memory(dim: int, solver: str):
+    """The memory law of a geometry file's mesh by its dimension and the solvers."""
+    return (lambda n: _memory_3d(n, solver)) if dim == 3 else _memory
+
+
+def check_file_mesh_size(params: CaseParameters, memory: int | None = None, solver: str = "direct") -> dict:
     """Raise :class:`ModelLimitError` if the estimated mesh of a geometry file does not fit in ``memory``."""
-    est = estimate_file_mesh(params)
+    est = estimate_file_mesh(params, solver)
     memory = machine_memory() if memory is None else memory
     budget = MEMORY_SHARE * memory
     if est["memory_bytes"] is None or est["memory_bytes"] <= budget:
@@ -317,7 +340,7 @@ def check_file_mesh_size(params: CaseParameters, memory: int | None = None) -> d
     if params.geometry.file.lower().endswith(".msh"):
         raise ModelLimitError(f"the mesh of geometry file {name} has {need}; this machine has "
                               f"{memory / 2**30:.3g} GiB: mesh the file more coarsely")
-    law, dim, size = _FILE_MEMORY[est["dimension"]], est["dimension"], params.mesh.size_factor
+    law, dim, size = _file_memory(est["dimension"], solver), est["dimension"], params.mesh.size_factor
     fits = lambda factor: law(est["elements"] * (size / factor) ** dim) <= budget   # noqa: E731
     lo, hi = size, 2.0 * size
     while not fits(hi):
@@ -330,15 +353,16 @@ def check_file_mesh_size(params: CaseParameters, memory: int | None = None) -> d
         f"{name}); this machine has {memory / 2**30:.3g} GiB: choose --mesh-size {_round_up(hi):g} or larger")
 
 
-def check_case(params: CaseParameters) -> None:
-    """Every check that must pass before a case is meshed or solved (a geometry file is read and checked)."""
+def check_case(params: CaseParameters, solver: str = "direct") -> None:
+    """Every check that must pass before a case is meshed or solved (a geometry file is read and checked);
+    ``solver``: the fields' solvers (``[solver] kind``), whose memory the mesh must fit."""
     described(params)
     check_representable(params)
     check_stiffness_ratio(params)
     if params.case == "file":
-        check_file_mesh_size(params)
+        check_file_mesh_size(params, solver=solver)
     else:
-        check_mesh_size(params)
+        check_mesh_size(params, solver=solver)
 
 
 # --------------------------------------------------------------------------- after solving

@@ -63,7 +63,7 @@ def solve_partitioned(params: CaseParameters, coupling: typing.Mapping | None = 
     """
     t0 = time.perf_counter()
     params = described(params)
-    check_case(params)
+    check_case(params, solver)
     config = partitioned_config(params, coupling, gamma2=gamma2)
     choice = {"solver": solver, "petsc_options": petsc_options}
     device = Device(params, comm, robin_coefficient=robin_coefficient, gamma2=gamma2, **choice)
