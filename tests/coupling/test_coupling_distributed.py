@@ -7,12 +7,7 @@ in serial one test launches them under ``mpirun -n 2`` itself.
 from __future__ import annotations
 
 import importlib.util
-import json
-import os
 import pathlib
-import shutil
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -20,6 +15,7 @@ import pytest
 import coupling as cp
 from coupling.parallel import SerialComm
 from coupling.toys import chain_problem
+from mpi_run import run_mpi
 
 HERE = pathlib.Path(__file__).resolve().parent
 spec = importlib.util.spec_from_file_location("coupling_distributed_toy", HERE / "coupling_distributed_toy.py")
@@ -50,16 +46,9 @@ def test_distributed_toys_match_one_process_here(comm):
 
 
 def test_distributed_toys_match_one_process_on_two_ranks(comm):
-    if comm.Get_size() > 1 or "OMPI_COMM_WORLD_SIZE" in os.environ:
+    if comm.Get_size() > 1:
         pytest.skip("already running under mpirun")
-    if shutil.which("mpirun") is None:
-        pytest.skip("mpirun not available")
-    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
-               OMPI_MCA_rmaps_base_oversubscribe="1", PYTHONUNBUFFERED="1")
-    proc = subprocess.run(["mpirun", "-n", "2", sys.executable, str(HERE / "coupling_distributed_toy.py")],
-                          capture_output=True, text=True, env=env, timeout=300, cwd=str(HERE.parents[1]))
-    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
-    _check(json.loads([ln for ln in proc.stdout.splitlines() if ln.strip()][-1]))
+    _check(run_mpi(str(HERE / "coupling_distributed_toy.py"), 2, timeout=300))
 
 
 def test_one_group_in_one_process_is_the_plain_scheme():
