@@ -14,7 +14,7 @@ from gelcell.case import CaseParameters, TimeSettings
 __all__ = ["transient_summary", "time_summary", "estimated_errors", "global_errors"]
 
 #: the schemes in words (summary.json's time block)
-SCHEMES = {"be": "backward Euler", "bdf2": "BDF2 (variable step, started by one backward Euler step)"}
+SCHEMES = {"be": "backward Euler", "bdf2": "BDF2 (variable step)"}
 
 
 # ----------------------------------------------------------------------------- summary
@@ -144,15 +144,18 @@ def transient_summary(state: dict, params: CaseParameters, settings: TimeSetting
 
 
 def time_summary(state: dict, params: CaseParameters, settings: TimeSettings, plan: dict,
-                 transient: dict) -> dict:
+                 transient: dict, start: tuple = ()) -> dict:
     """The ``time`` block of summary.json: scheme, step control, the milestones' estimated errors.
+
+    ``start``: the first steps of a run from rest in units of dt (BDF2's graded start), else ().
 
     ``estimated_error`` holds S_q = -e(t_q) / (x'(t_q) t_q) of each milestone
     (:func:`estimated_errors`, > 0: late) and their largest magnitude; None where the
     estimate does not apply (no milestones, or a load that is not a step).
     """
     control = ({"kind": "adaptive", "time_tol": settings.time_tol, "first_dt": plan["dt"]} if settings.adaptive
-               else {"kind": "fixed", "dt": plan["dt"], "dt_over_tau_c": plan["dt"] / plan["scales"]["consolidation"]})
+               else {"kind": "fixed", "dt": plan["dt"], "dt_over_tau_c": plan["dt"] / plan["scales"]["consolidation"],
+                     "start": list(start)})
     out = {"scheme": settings.scheme, "scheme_words": SCHEMES[settings.scheme], "step_control": control,
            "estimated_error": None}
     found = {q: transient[q] for q in ("t50", "t90", "t99")}

@@ -194,6 +194,11 @@ class TransientRun:
                 dt = breaks[0] - t
         return dt
 
+    @property
+    def start_steps(self) -> tuple:
+        """The first steps of this run from rest in units of dt (BDF2's graded start), else ()."""
+        return BDF2_START if self._graded_start() else ()
+
     def _graded_start(self) -> bool:
         """Fixed-step BDF2 from rest starts with the steps BDF2_START (a periodic run keeps equal steps)."""
         settings = self.settings

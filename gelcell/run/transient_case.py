@@ -86,7 +86,7 @@ def _summary(run: TransientRun, backend, state: dict, config: RunConfig, setup_t
     summary["cost"] = cost_summary(device_unknowns(backend.device) if backend.method == "partitioned" else
                                    monolithic_unknowns(backend.solver), backend.comm)
     summary["transient"] = transient_summary(state, params, config.time, run.plan)
-    summary["time"] = time_summary(state, params, config.time, run.plan, summary["transient"])
+    summary["time"] = time_summary(state, params, config.time, run.plan, summary["transient"], run.start_steps)
     if run.periodic is not None:
         summary["periodic"] = run.periodic.summary(state["rows"], params)
     if params.with_cell:
@@ -121,6 +121,10 @@ def _time_words(block: dict) -> str:
     control = block["step_control"]
     steps = (f"fixed dt = {control['dt']:.4e} (tau_c/{1 / control['dt_over_tau_c']:.4g})"
              if control["kind"] == "fixed" else f"adaptive dt (time_tol {control['time_tol']:.1e})")
+    if control.get("start"):
+        steps += " after " + ", ".join(f"{f:g} dt" for f in control["start"]) + " from rest"
+    if block["scheme"] == "bdf2":
+        steps += " (the first step backward Euler)"
     error = block["estimated_error"]
     words = ("not estimated (no milestones of a step start)" if error is None else
              "/".join(f"{error[q]:+.2%}" for q in ("t50", "t90", "t99")) + " of t50/t90/t99 (> 0: late)")
