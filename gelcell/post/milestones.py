@@ -2,7 +2,10 @@
 
 The ``transient`` block of summary.json: t50, t90, t99, the relaxation time
 of the exponential approach to the steady state, and the run's bookkeeping
-(windows, iterations, time scales, settings).
+(windows, iterations, time scales, settings).  The ``time`` block: the scheme,
+the step control and the milestones' estimated time-discretisation error
+(:func:`global_errors`; derived and measured in docs/transient.md, "Accuracy of
+the milestones").
 """
 
 from __future__ import annotations
