@@ -51,7 +51,8 @@ def test_partitioned_equals_monolithic_in_every_window(name, scheme, acceleratio
         kw["inflow"] = f"sine:1,0.5,{tau(p) / 4!r}"
     partitioned = run(p, acceleration=acceleration, **kw)
     monolithic = run(p, monolithic=True, **kw)
-    assert len(partitioned["rows"]) == len(monolithic["rows"]) == 5
+    # BDF2 from rest steps dt/4, dt/2, dt, dt, dt and dt/4 to t_end (gelcell.run.transient.BDF2_START)
+    assert len(partitioned["rows"]) == len(monolithic["rows"]) == (7 if scheme == "bdf2" else 5)
     np.testing.assert_allclose(partitioned["series"]["t"], monolithic["series"]["t"], rtol=1e-14)
     assert relative_difference(partitioned["series"], monolithic["series"]) < 1e-6
     assert np.all(partitioned["series"]["residual"][1:] <= 1e-10)
@@ -111,14 +112,16 @@ def test_adaptive_steps_converge_with_the_tolerance():
     assert windows[1] > windows[0], windows
 
 
-@pytest.mark.parametrize("scheme,steps,order", [("be", (8, 16, 32), 1), ("bdf2", (4, 8, 16), 2)])
+@pytest.mark.parametrize("scheme,steps,order", [("be", (8, 16, 32), 1), ("bdf2", (16, 32, 64), 2)])
 def test_time_order_of_the_device(scheme, steps, order):
     """The centroid at t = tau_c/2 with dt, dt/2, dt/4: successive differences fall by 2^order.
 
     Run on the monolithic path (the same discrete problem as the partitioned
     one, see above) because it is ~10x cheaper per window on these meshes.
     Backward Euler is asymptotically first order (measured 0.94 here); BDF2,
-    started by one backward Euler step, at least second order (measured 2.8).
+    started by dt/4 and dt/2 (gelcell.run.transient.BDF2_START), second order (measured
+    1.95 with 16, 32, 64 steps; with 4, 8, 16 steps it is not yet asymptotic, 1.10, although
+    its error at 4 steps is 1.2 % against 2.0 % with a first step of dt, measured 2.8 then).
     """
     p = case("shear")
     T = tau(p) / 2

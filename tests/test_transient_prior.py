@@ -21,10 +21,12 @@ extrapolation of the last three) that is 5 (measured: 4 and 5).
 from __future__ import annotations
 
 import math
+from unittest import mock
 
 import numpy as np
 import pytest
 
+from gelcell.run.transient import BDF2_START
 from test_transient import relative_difference
 from transient_cases import case, run, tau
 
@@ -55,14 +57,18 @@ def _newton_contraction(scheme, window) -> float:
     return largest(window.records[1]) / largest(window.records[0])
 
 
-@pytest.mark.parametrize("name,scheme", [("shear", "be"), ("normal", "bdf2")])
-def test_per_dt_prior_equals_monolithic_in_few_iterations(name, scheme):
+@pytest.mark.parametrize("name,scheme,start", [("shear", "be", None), ("normal", "bdf2", ())])
+def test_per_dt_prior_equals_monolithic_in_few_iterations(name, scheme, start):
     """Both devices, BE and BDF2 (its first step BE: two operators): every window = monolithic to 1e-6,
-    the Newton step contracts by the remainder only, and the sweeps keep the bound (module docstring)."""
+    the Newton step contracts by the remainder only, and the sweeps keep the bound (module docstring).
+
+    BDF2 on equal steps (``start = ()``, no graded start): the operators of the schemes themselves;
+    the graded start is the next test."""
     p = case(name)
     kw = dict(dt=tau(p) / 20, t_end=4 * tau(p) / 20, scheme=scheme)
-    partitioned = run(p, **kw)
-    monolithic = run(p, monolithic=True, **kw)
+    with mock.patch("gelcell.run.transient.BDF2_START", BDF2_START if start is None else start):
+        partitioned = run(p, **kw)
+        monolithic = run(p, monolithic=True, **kw)
     assert relative_difference(partitioned["series"], monolithic["series"]) < 1e-6
     coupling = partitioned["run"].backend.scheme
     prior = coupling.linearized_prior
@@ -74,11 +80,33 @@ def test_per_dt_prior_equals_monolithic_in_few_iterations(name, scheme):
         assert window.iterations <= bound(name, max(r0, 1.0)), (window.window, r0, window.iterations)
 
 
+def test_per_dt_prior_through_the_graded_bdf2_start():
+    """BDF2 from rest (dt/4 BE, dt/2 and dt with omega = 2, dt, and dt/4 to t_end: five operators):
+    every window = monolithic to 1e-6 and within the sweep bound.
+
+    Not asserted: the contraction of the third window (dt after dt/2, omega = 2), measured 4e-3
+    on the normal device against <= 1.6e-4 in the others (its first residual 2.2, the others'
+    <= 1.3): an open question of the coupling (issue 31), which costs it one sweep (5, not 4)."""
+    p = case("normal")
+    kw = dict(dt=tau(p) / 20, t_end=4 * tau(p) / 20, scheme="bdf2")
+    partitioned = run(p, **kw)
+    monolithic = run(p, monolithic=True, **kw)
+    assert relative_difference(partitioned["series"], monolithic["series"]) < 1e-6
+    coupling = partitioned["run"].backend.scheme
+    assert coupling.linearized_prior.factorizations == 5
+    for window in coupling.history:
+        if window.window != 2:
+            assert _newton_contraction(coupling, window) < CONTRACTION["normal"], window.window
+        r0 = max(window.records[0].measure_values.values())
+        assert window.iterations <= bound("normal", max(r0, 1.0)), (window.window, r0, window.iterations)
+
+
 def test_a_new_step_size_gets_its_own_prior():
     """A step cut short to land on t_end is a new operator: it is factorised for it, and converges as fast."""
     p = case("shear")
     dt = tau(p) / 20
-    partitioned = run(p, dt=dt, t_end=2.5 * dt)
+    # backward Euler: one operator of dt, one of the last step (BDF2's start would add its own)
+    partitioned = run(p, dt=dt, t_end=2.5 * dt, scheme="be")
     coupling = partitioned["run"].backend.scheme
     assert coupling.linearized_prior.factorizations == 2
     assert np.all(partitioned["series"]["iterations"][1:] <= bound("shear"))

@@ -19,7 +19,10 @@ Time scales (:func:`time_scales`), paper units:
 * Kelvin-Voigt  tau_KV = phi_f0 Ca / phi_s0: the viscous interstitial fluid
   moving with the network in the first instants (undrained start-up).
 
-Defaults: ``dt = tau_c / 40`` (fixed steps); adaptive runs start at
+Defaults: BDF2 at ``dt = tau_c / 40`` (fixed steps; from rest it starts at dt/4 and dt/2,
+:data:`gelcell.run.transient.BDF2_START`), which puts the milestones t50/t90/t99 within 1 % of
+their dt -> 0 limits on both devices, where backward Euler is 4-6 % late (docs/transient.md,
+"Accuracy of the milestones"); adaptive runs start at
 ``tau_KV / 10`` and grow.  A run stops at ``t_end``, or when steady: the
 gel's displacement changes by less than ``steady_tol`` of itself per
 consolidation time tau_c (relative change per unit time, in units of tau_c).
@@ -94,7 +97,8 @@ class TimeSettings:
         dt: fixed step, or the first step of an adaptive run (None: from the time scales).
         t_end: end time (None: until steady).
         until_steady: stop when steady (also the default when t_end is not given).
-        scheme: ``"be"`` (backward Euler) or ``"bdf2"``.
+        scheme: ``"bdf2"`` (the default: within 1 % of the dt -> 0 milestones at tau_c/40, docs/transient.md)
+            or ``"be"`` (backward Euler).
         adaptive: choose dt from an error estimate with tolerance ``time_tol``.
         time_tol: relative local error per step allowed by the adaptive control, in (0, 1).
         steady_tol: relative change per consolidation time below which the run is steady, in (0, 1).
@@ -112,7 +116,7 @@ class TimeSettings:
     dt: float | None = None
     t_end: float | None = None
     until_steady: bool = False
-    scheme: str = "be"
+    scheme: str = "bdf2"
     adaptive: bool = False
     time_tol: float = 1e-3
     steady_tol: float = 1e-4

@@ -26,7 +26,7 @@ from gelcell.output.figures import FigureWorker, collect_figures, figure_data, f
 from gelcell.output.profiles import write_profiles
 from gelcell.output.summary import format_summary, report
 from gelcell.output.timeseries import write_timeseries
-from gelcell.post.milestones import transient_summary
+from gelcell.post.milestones import time_summary, transient_summary
 from gelcell.post.validity import model_warnings
 from gelcell.run.backends import MonolithicBackend, PartitionedBackend
 from gelcell.run.cost import cost_summary, device_unknowns, monolithic_unknowns
@@ -86,6 +86,7 @@ def _summary(run: TransientRun, backend, state: dict, config: RunConfig, setup_t
     summary["cost"] = cost_summary(device_unknowns(backend.device) if backend.method == "partitioned" else
                                    monolithic_unknowns(backend.solver), backend.comm)
     summary["transient"] = transient_summary(state, params, config.time, run.plan)
+    summary["time"] = time_summary(state, params, config.time, run.plan, summary["transient"], run.start_steps)
     if run.periodic is not None:
         summary["periodic"] = run.periodic.summary(state["rows"], params)
     if params.with_cell:
@@ -107,11 +108,27 @@ def _say_summary(summary: dict, say, comm: MPI.Comm) -> None:
         f"{t['iterations_total']} iterations (mean {t['iterations_mean']:.2f}), "
         f"t50/t90/t99 = {_fmt(t['t50'])}/{_fmt(t['t90'])}/{_fmt(t['t99'])}, "
         f"relaxation time {_fmt(t['relaxation_time'])} (paper units)")
+    say(_time_words(summary["time"]))
     if "periodic" in summary:
         _say_periodic(summary["periodic"], say, comm)
     prior = summary.get("coupling", {}).get("jacobian_prior")
     if prior is not None:
         say(f"coupling prior: {prior}")
+
+
+def _time_words(block: dict) -> str:
+    """The line that says the scheme, the step control and the milestones' estimated errors."""
+    control = block["step_control"]
+    steps = (f"fixed dt = {control['dt']:.4e} (tau_c/{1 / control['dt_over_tau_c']:.4g})"
+             if control["kind"] == "fixed" else f"adaptive dt (time_tol {control['time_tol']:.1e})")
+    if control.get("start"):
+        steps += " after " + ", ".join(f"{f:g} dt" for f in control["start"]) + " from rest"
+    if block["scheme"] == "bdf2":
+        steps += " (the first step backward Euler)"
+    error = block["estimated_error"]
+    words = ("not estimated (no milestones of a step start)" if error is None else
+             "/".join(f"{error[q]:+.2%}" for q in ("t50", "t90", "t99")) + " of t50/t90/t99 (> 0: late)")
+    return f"time discretisation: {block['scheme_words']}, {steps}; estimated error {words}"
 
 
 def _say_periodic(block: dict, say, comm: MPI.Comm) -> None:
