@@ -229,7 +229,8 @@ def _add_time_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--t-end", type=_number, metavar="T", help="end time (default: until steady)")
     _flag(g, "--until-steady", help="stop when the relative change per consolidation time is below --steady-tol")
     g.add_argument("--time-scheme", choices=("be", "bdf2"), default=None,
-                   help="backward Euler (default) or BDF2 (started by one backward Euler step) (time.scheme)")
+                   help="BDF2 (default; from rest a backward Euler step of dt/4, then dt/2) or backward Euler "
+                        "(time.scheme)")
     _flag(g, "--adaptive", help="adaptive dt from a local error estimate (tolerance --time-tol)")
     g.add_argument("--time-tol", type=_number, metavar="TOL", help="relative local error per step (default 1e-3)")
     g.add_argument("--steady-tol", type=_number, metavar="TOL",
