@@ -299,10 +299,26 @@ ELASTICITY_OPTIONS = {"pc_type": "gamg", "pc_gamg_type": "agg", "pc_gamg_thresho
                       "mg_levels_pc_type": "jacobi", "mg_levels_ksp_max_it": 2}
 
 
+#: in 3D GAMG coarsens on the squared graph: on the unsquared graph of a P2 vector block its coarse
+#: levels came out denser than the fine one (operator complexity 3.9-5.1 on the 3D shear device's gel
+#: blocks; 1.13-1.15 squared), which made the set-up 7 x and each V-cycle 2-3 x as expensive
+AMG_3D_OPTIONS = {"pc_gamg_square_graph": 1}
+
+
+def elasticity_options(dim: int) -> dict:
+    """:data:`ELASTICITY_OPTIONS` for a ``dim``-dimensional vector block (:data:`AMG_3D_OPTIONS` in 3D)."""
+    return {**ELASTICITY_OPTIONS, **(AMG_3D_OPTIONS if dim == 3 else {})}
+
+
+def _prefixed(prefix: str, options: dict) -> dict:
+    return {prefix + k: v for k, v in options.items()}
+
+
 def elasticity_solver(V: fem.FunctionSpace, name: str, options: dict | None = None,
                       ksp_type: str = "cg") -> KrylovSolver:
     """CG (or ``ksp_type``) with GAMG and the rigid-body near-null space of the vector space ``V``."""
-    return KrylovSolver(V.mesh.comm, name, ksp_type, _merged(ELASTICITY_OPTIONS, options),
+    defaults = elasticity_options(V.mesh.geometry.dim)
+    return KrylovSolver(V.mesh.comm, name, ksp_type, _merged(defaults, options),
                         near_null_space=rigid_body_modes(V))
 
 
@@ -331,14 +347,15 @@ def stokes_solver(W: fem.FunctionSpace, name: str, preconditioner_form, bcs, opt
     velocity_set, nodes = _node_ordered(W, V, V_to_W)
     pressure_set = owned_index_set(W, W.sub(pressure).collapse()[1])
     fields = [("u", velocity_set, rigid_body_modes(V, nodes)), ("p", pressure_set, None)]
+    defaults = {**STOKES_OPTIONS, **_prefixed("fieldsplit_u_", elasticity_options(W.mesh.geometry.dim))}
     if not pinned:
-        return KrylovSolver(W.mesh.comm, name, "minres", _merged(STOKES_OPTIONS, options),
+        return KrylovSolver(W.mesh.comm, name, "minres", _merged(defaults, options),
                             preconditioner_form=preconditioner_form, bcs=bcs, fields=fields)
     n_owned, start = W.dofmap.index_map.size_local * W.dofmap.index_map_bs, W.dofmap.index_map.local_range[0]
     constrained = np.concatenate([bc.dof_indices()[0] for bc in bcs] + [np.empty(0, np.int32)])
     constrained = constrained[constrained < n_owned] + start
     pins = np.flatnonzero(np.isin(pressure_set, constrained)).astype(PETSc.IntType)
-    return _PinnedStokes(W.mesh.comm, name, "minres", _merged(STOKES_OPTIONS, options),
+    return _PinnedStokes(W.mesh.comm, name, "minres", _merged(defaults, options),
                          preconditioner_form=preconditioner_form, bcs=bcs, fields=fields, pins=pins)
 
 
@@ -408,9 +425,21 @@ def _node_ordered(W: fem.FunctionSpace, V: fem.FunctionSpace, V_to_W) -> tuple[P
 
 
 #: block Gauss-Seidel over (w, u, p): AMG on the flow and the network blocks, PressureSchur on p
-GEL_OPTIONS = {"pc_fieldsplit_type": "multiplicative",
+#: GMRES restarts after 100 iterations (PETSc: 30: 94 instead of 82 iterations on the 3D shear device)
+GEL_OPTIONS = {"pc_fieldsplit_type": "multiplicative", "ksp_gmres_restart": 100,
                **{f"fieldsplit_{f}_ksp_type": "preonly" for f in ("w", "u", "p")},
                **{f"fieldsplit_{f}_" + k: v for f in ("w", "u") for k, v in ELASTICITY_OPTIONS.items()}}
+
+
+#: the gel's blocks in 3D: AMG_3D_OPTIONS, and no graph threshold (82 instead of 96 GMRES iterations
+#: on the 3D shear device at mesh-size 6)
+GEL_3D_OPTIONS = {f"fieldsplit_{f}_" + k: v for f in ("w", "u")
+                  for k, v in {**AMG_3D_OPTIONS, "pc_gamg_threshold": 0.0}.items()}
+
+
+def gel_options(dim: int) -> dict:
+    """The gel solver's defaults in ``dim`` dimensions (:data:`GEL_3D_OPTIONS` in 3D)."""
+    return {**GEL_OPTIONS, **(GEL_3D_OPTIONS if dim == 3 else {})}
 
 
 def gel_solver(W: fem.FunctionSpace, name: str, preconditioner_form, mass_form, bcs,
@@ -430,7 +459,7 @@ def gel_solver(W: fem.FunctionSpace, name: str, preconditioner_form, mass_form, 
         index_set, nodes = _node_ordered(W, V, V_to_W)
         fields.append((label, index_set, rigid_body_modes(V, nodes)))
     fields.append(("p", owned_index_set(W, W.sub(2).collapse()[1]), None))
-    return _GelKrylov(W.mesh.comm, name, "gmres", _merged(GEL_OPTIONS, options),
+    return _GelKrylov(W.mesh.comm, name, "gmres", _merged(gel_options(W.mesh.geometry.dim), options),
                       preconditioner_form=preconditioner_form, bcs=bcs, fields=fields,
                       preconditioned_norm=True, mass_form=mass_form)
 
