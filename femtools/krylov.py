@@ -12,7 +12,9 @@ side's: ``|b - A x| <= rtol |b|`` in the unpreconditioned norm where the method
 supports it (CG, GMRES with right preconditioning), ``|B (b - A x)| <= rtol |B b|``
 for MINRES (which supports only the preconditioned norm; B is the
 preconditioner).  The absolute tolerance is zero: the device's loads are tiny
-(model.md §5) and no absolute floor is safe for all of them.  A zero right-hand
+(model.md §5) and no absolute floor is safe for all of them.  The gel's default
+is looser (``GEL_OPTIONS``: its solves are Newton steps that the next residual
+corrects); the others' are for single linear solves.  A zero right-hand
 side returns zero without iterating.  Warm start: the initial guess is the
 previous solution when that leaves a smaller residual than zero does.
 
@@ -299,10 +301,26 @@ ELASTICITY_OPTIONS = {"pc_type": "gamg", "pc_gamg_type": "agg", "pc_gamg_thresho
                       "mg_levels_pc_type": "jacobi", "mg_levels_ksp_max_it": 2}
 
 
+#: in 3D GAMG coarsens on the squared graph: on the unsquared graph of a P2 vector block its coarse
+#: levels came out denser than the fine one (operator complexity 3.9-5.1 on the 3D shear device's gel
+#: blocks; 1.13-1.15 squared), which made the set-up 7 x and each V-cycle 2-3 x as expensive
+AMG_3D_OPTIONS = {"pc_gamg_square_graph": 1}
+
+
+def elasticity_options(dim: int) -> dict:
+    """:data:`ELASTICITY_OPTIONS` for a ``dim``-dimensional vector block (:data:`AMG_3D_OPTIONS` in 3D)."""
+    return {**ELASTICITY_OPTIONS, **(AMG_3D_OPTIONS if dim == 3 else {})}
+
+
+def _prefixed(prefix: str, options: dict) -> dict:
+    return {prefix + k: v for k, v in options.items()}
+
+
 def elasticity_solver(V: fem.FunctionSpace, name: str, options: dict | None = None,
                       ksp_type: str = "cg") -> KrylovSolver:
     """CG (or ``ksp_type``) with GAMG and the rigid-body near-null space of the vector space ``V``."""
-    return KrylovSolver(V.mesh.comm, name, ksp_type, _merged(ELASTICITY_OPTIONS, options),
+    defaults = elasticity_options(V.mesh.geometry.dim)
+    return KrylovSolver(V.mesh.comm, name, ksp_type, _merged(defaults, options),
                         near_null_space=rigid_body_modes(V))
 
 
@@ -331,14 +349,15 @@ def stokes_solver(W: fem.FunctionSpace, name: str, preconditioner_form, bcs, opt
     velocity_set, nodes = _node_ordered(W, V, V_to_W)
     pressure_set = owned_index_set(W, W.sub(pressure).collapse()[1])
     fields = [("u", velocity_set, rigid_body_modes(V, nodes)), ("p", pressure_set, None)]
+    defaults = {**STOKES_OPTIONS, **_prefixed("fieldsplit_u_", elasticity_options(W.mesh.geometry.dim))}
     if not pinned:
-        return KrylovSolver(W.mesh.comm, name, "minres", _merged(STOKES_OPTIONS, options),
+        return KrylovSolver(W.mesh.comm, name, "minres", _merged(defaults, options),
                             preconditioner_form=preconditioner_form, bcs=bcs, fields=fields)
     n_owned, start = W.dofmap.index_map.size_local * W.dofmap.index_map_bs, W.dofmap.index_map.local_range[0]
     constrained = np.concatenate([bc.dof_indices()[0] for bc in bcs] + [np.empty(0, np.int32)])
     constrained = constrained[constrained < n_owned] + start
     pins = np.flatnonzero(np.isin(pressure_set, constrained)).astype(PETSc.IntType)
-    return _PinnedStokes(W.mesh.comm, name, "minres", _merged(STOKES_OPTIONS, options),
+    return _PinnedStokes(W.mesh.comm, name, "minres", _merged(defaults, options),
                          preconditioner_form=preconditioner_form, bcs=bcs, fields=fields, pins=pins)
 
 
@@ -408,9 +427,24 @@ def _node_ordered(W: fem.FunctionSpace, V: fem.FunctionSpace, V_to_W) -> tuple[P
 
 
 #: block Gauss-Seidel over (w, u, p): AMG on the flow and the network blocks, PressureSchur on p
-GEL_OPTIONS = {"pc_fieldsplit_type": "multiplicative",
+#: GMRES restarts after 100 iterations (PETSc: 30: 94 instead of 82 iterations on the 3D shear device)
+#: rtol 1e-8: the gel is always solved by Newton, whose every step takes the exact residual, so the
+#: Krylov error (about 100 x rtol in the preconditioned norm here) sets a step's contraction (1e-6, far
+#: below the 0.1 of the reuse test and the 1e-3 of the linear path), not the answer's accuracy
+GEL_OPTIONS = {"ksp_rtol": 1e-8, "pc_fieldsplit_type": "multiplicative", "ksp_gmres_restart": 100,
                **{f"fieldsplit_{f}_ksp_type": "preonly" for f in ("w", "u", "p")},
                **{f"fieldsplit_{f}_" + k: v for f in ("w", "u") for k, v in ELASTICITY_OPTIONS.items()}}
+
+
+#: the gel's blocks in 3D: AMG_3D_OPTIONS, and no graph threshold (82 instead of 96 GMRES iterations
+#: on the 3D shear device at mesh-size 6)
+GEL_3D_OPTIONS = {f"fieldsplit_{f}_" + k: v for f in ("w", "u")
+                  for k, v in {**AMG_3D_OPTIONS, "pc_gamg_threshold": 0.0}.items()}
+
+
+def gel_options(dim: int) -> dict:
+    """The gel solver's defaults in ``dim`` dimensions (:data:`GEL_3D_OPTIONS` in 3D)."""
+    return {**GEL_OPTIONS, **(GEL_3D_OPTIONS if dim == 3 else {})}
 
 
 def gel_solver(W: fem.FunctionSpace, name: str, preconditioner_form, mass_form, bcs,
@@ -430,7 +464,7 @@ def gel_solver(W: fem.FunctionSpace, name: str, preconditioner_form, mass_form, 
         index_set, nodes = _node_ordered(W, V, V_to_W)
         fields.append((label, index_set, rigid_body_modes(V, nodes)))
     fields.append(("p", owned_index_set(W, W.sub(2).collapse()[1]), None))
-    return _GelKrylov(W.mesh.comm, name, "gmres", _merged(GEL_OPTIONS, options),
+    return _GelKrylov(W.mesh.comm, name, "gmres", _merged(gel_options(W.mesh.geometry.dim), options),
                       preconditioner_form=preconditioner_form, bcs=bcs, fields=fields,
                       preconditioned_norm=True, mass_form=mass_form)
 
@@ -475,18 +509,90 @@ class PressureSchur:
         y.scale(-1.0)
 
 
+class BlockLowerTriangular:
+    """The block Gauss-Seidel sweep over (w, u, p) with the off-diagonal blocks only (a python PC).
+
+    y_w = K_w^-1 x_w, y_u = K_u^-1 (x_u - A_uw y_w), y_p = K_p^-1 (x_p - A_pw y_w - A_pu y_u), the
+    K_i the sub-solvers of ``inner`` (a PCFIELDSPLIT set up on the same operators).  PCFIELDSPLIT's
+    own multiplicative sweep multiplies by the whole operator for each split after the first, about
+    as much work as the three sub-solvers.  ``sweep=False``: ``inner``'s own apply (another split type).
+    """
+
+    def __init__(self, inner: PETSc.PC, fields: typing.Sequence[PETSc.IS], sweep: bool = True):
+        self.inner, self.fields, self.sweep = inner, list(fields), sweep
+        self._blocks: dict[tuple[int, int], PETSc.Mat] = {}
+        self._scatters: list = []
+
+    def setUp(self, pc) -> None:
+        """Extract A_uw, A_pw, A_pu of the operator (the sub-solvers are set up by the caller)."""
+        if not self.sweep:
+            return
+        A = pc.getOperators()[0]
+        for i, j in ((1, 0), (2, 0), (2, 1)):
+            self._blocks[i, j] = A.createSubMatrix(self.fields[i], self.fields[j], submat=self._blocks.get((i, j)))
+        if not self._scatters:
+            x = A.createVecRight()
+            self._y = [self._blocks[2, 0].createVecRight(), self._blocks[2, 1].createVecRight(),
+                       self._blocks[2, 0].createVecLeft()]
+            self._r, self._work = [v.duplicate() for v in self._y], [v.duplicate() for v in self._y]
+            self._scatters = [PETSc.Scatter().create(x, f, v, None) for f, v in zip(self.fields, self._y)]
+            x.destroy()
+
+    def apply(self, pc, x: PETSc.Vec, y: PETSc.Vec) -> None:
+        if not self.sweep:
+            self.inner.apply(x, y)
+            return
+        subs, r = self.inner.getFieldSplitSubKSP(), self._r
+        for k, scatter in enumerate(self._scatters):
+            scatter.scatter(x, r[k], PETSc.InsertMode.INSERT, PETSc.ScatterMode.FORWARD)
+            for j in range(k):
+                self._blocks[k, j].mult(self._y[j], self._work[k])
+                r[k].axpy(-1.0, self._work[k])
+            subs[k].solve(r[k], self._y[k])
+            scatter.scatter(self._y[k], y, PETSc.InsertMode.INSERT, PETSc.ScatterMode.REVERSE)
+
+
 class _GelKrylov(KrylovSolver):
-    """The gel's solver: :class:`PressureSchur` on the pressure block (see :func:`gel_solver`)."""
+    """The gel's solver: :class:`PressureSchur` on the pressure block (see :func:`gel_solver`), and
+    :class:`BlockLowerTriangular` for the multiplicative split."""
 
     def __init__(self, *args, mass_form, **kwargs):
         super().__init__(*args, **kwargs)
         self._mass_form = mass_form
         self._pressure: PressureSchur | None = None
+        self._inner: PETSc.PC | None = None
+
+    def _configure(self) -> None:
+        """The field split as an inner PC read from the options, under the KSP's
+        :class:`BlockLowerTriangular` (its sweep if the split is multiplicative, the default)."""
+        self._set_norm()
+        opts = PETSc.Options()
+        for k, v in self._options.items():
+            opts[self._prefix + k] = v
+        try:
+            self.ksp.setFromOptions()
+            self.ksp.setTolerances(rtol=self.rtol, atol=0.0, max_it=self.max_it)
+            inner = self._inner = PETSc.PC().create(self.comm)
+            inner.setOptionsPrefix(self._prefix)
+            inner.setType("fieldsplit")
+            inner.setFieldSplitIS(*self._fields)
+            inner.setOperators(*self.ksp.getOperators())
+            inner.setFromOptions()
+            sweep = opts.getString(self._prefix + "pc_fieldsplit_type", "multiplicative") == "multiplicative"
+            pc = self.ksp.getPC()
+            pc.setType("python")
+            pc.setPythonContext(BlockLowerTriangular(inner, [f for _, f in self._fields], sweep))
+            self._set_up()
+        finally:
+            for k in self._options:
+                opts.delValue(self._prefix + k)
+        self._configured = True
 
     def _set_up(self) -> None:
-        self.ksp.setUp()
-        pc = self.ksp.getPC()
-        subs = pc.getFieldSplitSubKSP()
+        inner = self._inner
+        inner.setOperators(*self.ksp.getOperators())
+        inner.setUp()
+        subs = inner.getFieldSplitSubKSP()
         p_set = self._fields[2][1]
         self._L_beta = self._P.createSubMatrix(p_set, p_set, submat=getattr(self, "_L_beta", None))
         mass = fem_petsc.assemble_matrix(self._mass_form)
@@ -504,3 +610,4 @@ class _GelKrylov(KrylovSolver):
             obj.destroy()
         for sub in subs:
             sub.setUp()
+        self.ksp.setUp()

@@ -850,6 +850,10 @@ class NewtonSolver:
     def _linear_solve(self) -> None:
         if self._active is None:
             self._linear.solve(self.b, self.du)
+            if getattr(self._linear, "kind", None) == "krylov":
+                # the Dirichlet rows of du exactly (a Krylov method leaves them to round-off): the
+                # iterate then holds the values, and the next residuals skip the lifting
+                fem_petsc.set_bc(self.du, self.bcs, self.u.vector, -1.0)
             return
         self.du.zeroEntries()
         b_sub, du_sub = self.b.getSubVector(self._active), self.du.getSubVector(self._active)

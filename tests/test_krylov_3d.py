@@ -14,9 +14,9 @@ References, per field:
 * the Krylov iterations at two 3D levels: finest <= 1.5 coarsest + 5, the
   bound of tests/test_krylov.py (a mesh-independent preconditioner).
 
-GAMG coarsens on the squared graph (``square_graph 1``) here, for the Stokes
-velocity block and the cell: with the default 0 the set-up at the finer 3D levels
-is 4 x slower (duct (4, 8, 4): 8 s instead of 2 s, 104 instead of 127 MINRES
+GAMG coarsens on the squared graph in 3D (``femtools.krylov.AMG_3D_OPTIONS``, the
+factories' default there): with ``square_graph 0`` the set-up at the finer 3D levels
+was 4 x slower (duct (4, 8, 4): 8 s instead of 2 s, 104 instead of 127 MINRES
 iterations; Lame sphere h0/4: 16 s instead of 4 s, 36 instead of 61 CG iterations).
 """
 
@@ -38,10 +38,6 @@ from test_cell_3d import radial_solution  # noqa: F401  (the fixture of the fini
 from test_krylov import bounded
 
 COMM = MPI.COMM_WORLD
-STOKES_3D_OPTIONS = {"fieldsplit_u_pc_gamg_square_graph": 1}
-CELL_3D_OPTIONS = {"pc_gamg_square_graph": 1}
-#: the finite-strain sphere on femtools.krylov's default smoother (its Chebyshev bound is why it converges)
-FINITE_STRAIN_OPTIONS = dict(CELL_3D_OPTIONS)
 
 
 def use_solver(monkeypatch, module, name: str, real, kind: str, petsc_options: dict | None = None) -> list:
@@ -78,7 +74,7 @@ def krylov_counts(linear_solver) -> tuple[int, int]:
 # --------------------------------------------------------------------------- Stokes: the duct
 def test_duct_on_the_iterative_path(monkeypatch):
     """MINRES: the duct test (two levels, its rates and error bound); the coarsest level = direct."""
-    built = use_solver(monkeypatch, fluid3d_cases, "StokesSolver", StokesSolver, "iterative", STOKES_3D_OPTIONS)
+    built = use_solver(monkeypatch, fluid3d_cases, "StokesSolver", StokesSolver, "iterative")
     test_fluid_3d.test_duct_against_the_series_at_the_taylor_hood_rate()
     monkeypatch.undo()
     (coarse, (msh, ft)), _ = built
@@ -136,8 +132,7 @@ def test_gel_manufactured_solution_on_the_iterative_path(monkeypatch):
 # --------------------------------------------------------------------------- the cell
 def test_lame_sphere_on_the_iterative_path(monkeypatch):
     """CG + GAMG: the Lame octant test (h0/2, h0/4: its rate and von Mises bounds); h0/2 = direct."""
-    built = use_solver(monkeypatch, test_cell_3d, "NeoHookeanCellSolver", NeoHookeanCellSolver, "iterative",
-                       CELL_3D_OPTIONS)
+    built = use_solver(monkeypatch, test_cell_3d, "NeoHookeanCellSolver", NeoHookeanCellSolver, "iterative")
     test_cell_3d.test_lame_octant_rate_and_von_mises()
     monkeypatch.undo()
     direct, _ = test_cell_3d.pressurised_shell(1)
@@ -154,8 +149,7 @@ def test_finite_strain_sphere_on_the_iterative_path(monkeypatch, radial_solution
     levels, 4 load steps: its rate and its bound against the linear answer); each level's final state = direct."""
     direct_built = use_solver(monkeypatch, test_cell_3d, "NeoHookeanCellSolver", NeoHookeanCellSolver, "direct")
     test_cell_3d.test_finite_strain_sphere_against_the_radial_ode(radial_solution)
-    built = use_solver(monkeypatch, test_cell_3d, "NeoHookeanCellSolver", NeoHookeanCellSolver, "iterative",
-                       FINITE_STRAIN_OPTIONS)
+    built = use_solver(monkeypatch, test_cell_3d, "NeoHookeanCellSolver", NeoHookeanCellSolver, "iterative")
     test_cell_3d.test_finite_strain_sphere_against_the_radial_ode(radial_solution)
     diff = max(nodal_difference(s.displacement, d.displacement) for (s, _), (d, _) in zip(built, direct_built))
     counts = [krylov_counts(s._newton.solver) for s, _ in built]
