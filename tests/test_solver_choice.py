@@ -77,7 +77,7 @@ def _series(solver: str, windows: int) -> dict:
     """The time series of the shear device with its cell over ``windows`` backward-Euler windows from rest
     (each window's coupling converged to its 1e-10 residual)."""
     p = _params("shear", TRANSIENT_MESH)
-    settings = TimeSettings(transient=True, dt=tau(p) / 40, t_end=windows * tau(p) / 40)
+    settings = TimeSettings(transient=True, dt=tau(p) / 40, t_end=windows * tau(p) / 40, scheme="be")
     device = Device(p, MPI.COMM_WORLD, transient=True, time_scheme=settings.scheme, inflow=settings.waveform,
                     solver=solver)
     config = {**coupling_config(with_cell=True, transient=True), "verbose": False}

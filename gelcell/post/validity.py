@@ -175,11 +175,11 @@ MEMORY_LINEAR_3D = 3.7e4
 MEMORY_FILL_3D = 2.6e3
 #: Peak memory of a 3D run on the iterative path (``--solver iterative``: Krylov solvers with algebraic
 #: multigrid, no factorisation): BASE_MEMORY_3D_ITERATIVE + MEMORY_ITERATIVE_3D N bytes for N tetrahedra,
-#: through the peak resident memory of the shear device's iterative runs at mesh sizes 6 and 4 (540 MiB
-#: at 3,540 tetrahedra, 1,080 MiB at 7,489; docs/performance.md, "3D devices").  ``auto`` is
+#: through the peak resident memory of the shear device's iterative runs at mesh sizes 6 and 4 (492 MiB
+#: at 3,540 tetrahedra, 901 MiB at 7,489; docs/performance.md, "3D devices").  ``auto`` is
 #: estimated by the direct law, an upper bound (its fields of more than 100 000 unknowns go iterative).
-BASE_MEMORY_3D_ITERATIVE = 0.06e9
-MEMORY_ITERATIVE_3D = 1.43e5
+BASE_MEMORY_3D_ITERATIVE = 0.13e9
+MEMORY_ITERATIVE_3D = 1.09e5
 
 
 def _graded_size(distance, size: float, band: float, far: float, growth: float):
