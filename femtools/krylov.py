@@ -28,6 +28,7 @@ preconditioner over (w, u, p), :class:`PressureSchur` on the pressure).
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import time
 import typing
@@ -206,6 +207,18 @@ class KrylovSolver:
             for sub in pc.getFieldSplitSubKSP():
                 sub.setUp()
 
+    @contextlib.contextmanager
+    def _options_in_database(self):
+        """This solver's options in PETSc's database while its objects read them; removed afterwards."""
+        opts = PETSc.Options()
+        for k, v in self._options.items():
+            opts[self._prefix + k] = v
+        try:
+            yield opts
+        finally:
+            for k in self._options:
+                opts.delValue(self._prefix + k)
+
     def _configure(self) -> None:
         """Field splits, then the options (defaults and user's) from the database, then clean it."""
         pc = self.ksp.getPC()
@@ -213,16 +226,10 @@ class KrylovSolver:
             pc.setType("fieldsplit")
             pc.setFieldSplitIS(*self._fields)
         self._set_norm()
-        opts = PETSc.Options()
-        for k, v in self._options.items():
-            opts[self._prefix + k] = v
-        try:
+        with self._options_in_database():
             self.ksp.setFromOptions()
             self.ksp.setTolerances(rtol=self.rtol, atol=0.0, max_it=self.max_it)
             self._set_up()          # the preconditioners read their options here
-        finally:
-            for k in self._options:
-                opts.delValue(self._prefix + k)
         self._configured = True
 
 
@@ -566,10 +573,7 @@ class _GelKrylov(KrylovSolver):
         """The field split as an inner PC read from the options, under the KSP's
         :class:`BlockLowerTriangular` (its sweep if the split is multiplicative, the default)."""
         self._set_norm()
-        opts = PETSc.Options()
-        for k, v in self._options.items():
-            opts[self._prefix + k] = v
-        try:
+        with self._options_in_database() as opts:
             self.ksp.setFromOptions()
             self.ksp.setTolerances(rtol=self.rtol, atol=0.0, max_it=self.max_it)
             inner = self._inner = PETSc.PC().create(self.comm)
@@ -583,9 +587,6 @@ class _GelKrylov(KrylovSolver):
             pc.setType("python")
             pc.setPythonContext(BlockLowerTriangular(inner, [f for _, f in self._fields], sweep))
             self._set_up()
-        finally:
-            for k in self._options:
-                opts.delValue(self._prefix + k)
         self._configured = True
 
     def _set_up(self) -> None:
