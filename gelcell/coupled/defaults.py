@@ -157,7 +157,7 @@ def coupling_config(scheme: str = "serial", acceleration: str = "iqn-ils", *, li
     (docs/transient.md).
     """
     scheme = f"{scheme}-implicit" if scheme in ("serial", "parallel") else scheme
-    order = ["fluid", "gel", "cell"] if with_cell else ["fluid", "gel"]
+    order = _participant_names(with_cell)
     relaxation_prior = (default_relaxation_prior(params) if params is not None and not transient
                         and acceleration in ("iqn-ils", "iqn-imvj") and scheme == "serial-implicit"
                         and gamma2 == "dirichlet" else {})
@@ -284,8 +284,7 @@ def device_distribution(spec: str | None, params: CaseParameters, comm: typing.A
     anything is meshed, if the spec is malformed, misses or repeats a field, or does not fit the ranks."""
     if not spec:
         return None
-    _check_distribute(spec, params.with_cell, comm.Get_size())
-    try:
+    try:                    # Distribution parses the spec, checks the names and fits the ranks
         return cp.Distribution(spec, comm, names=_participant_names(params.with_cell))
     except ValueError as exc:
         raise ParameterError(f"the [coupling] table is invalid: coupling.{exc}") from None
@@ -293,7 +292,7 @@ def device_distribution(spec: str | None, params: CaseParameters, comm: typing.A
 
 def _check_order(order: typing.Sequence[str], with_cell: bool) -> None:
     """``[coupling] order``, if given, names each participant of the device once (ParameterError if not)."""
-    names = ["fluid", "gel", "cell"] if with_cell else ["fluid", "gel"]
+    names = _participant_names(with_cell)
     if order and sorted(order) != sorted(names):
         unknown = [o for o in order if o not in names]
         missing = [n for n in names if n not in order]
