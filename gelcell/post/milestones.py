@@ -37,9 +37,7 @@ def _crossing(t: np.ndarray, x: np.ndarray, level: float) -> float | None:
     linear = float(t[k - 1] + (level - x[k - 1]) * (t[k] - t[k - 1]) / (x[k] - x[k - 1]))
     if len(t) < 3:
         return linear
-    j = k - 1 if k + 1 < len(t) else k - 2
-    if j < 0:
-        return linear
+    j = k - 1 if k + 1 < len(t) else k - 2          # >= 0: k >= 1, and k = len - 1 >= 2 in the else
     return _quadratic_root(t[j:j + 3], x[j:j + 3] - level, t[k - 1], t[k], linear)
 
 
