@@ -182,8 +182,8 @@ class TransientRun:
     def _next_dt(self) -> float:
         st, plan = self.state, self.plan
         dt = st["dt_next"] if self.settings.adaptive else plan["dt"]
-        if self._graded_start() and st["windows"] < len(BDF2_START):
-            dt *= BDF2_START[st["windows"]]
+        if st["windows"] < len(self.start_steps):
+            dt *= self.start_steps[st["windows"]]
         t = st["t"]
         if plan["t_end"] is not None and t + dt > plan["t_end"] * (1 - 1e-12):
             dt = plan["t_end"] - t
