@@ -71,11 +71,11 @@ def _check_coupling(config: RunConfig, transient: bool = False) -> None:
         from gelcell.coupled.defaults import partitioned_config
         coupling = partitioned_config(config.case, config.coupling, transient=transient,
                                       gamma2=config.solver.gamma2, ranks=MPI.COMM_WORLD.size)
-        if coupling.get("distribute"):
+        if coupling.get("distribute") and transient:
             raise ParameterError(
-                f"parameter 'coupling.distribute' = {coupling['distribute']!r} (--distribute) is valid, but "
-                f"gelcell run does not write the outputs of a distributed run yet (each field lives on its "
-                f"own ranks); run it through gelcell.coupled.Device(..., distribute=...) (docs/coupling.md)")
+                f"parameter 'coupling.distribute' = {coupling['distribute']!r} (--distribute) is for steady runs: "
+                f"a time-dependent run (time.transient, --transient) does not run its participants in separate "
+                f"process groups yet; drop one of the two")
 
 
 # --------------------------------------------------------------------------- mesh
