@@ -4,7 +4,8 @@ The 2D shear device with a cell (mesh size 3), parallel- and serial-implicit,
 distributed "fluid:1,gel+cell:1" on 2 ranks against one process: the same
 iterations, interface data and fields (to 1e-10).  ``gelcell run
 --distribute`` on 2 ranks writes the outputs of the run without it (every
-number of summary.json to 1e-10, the same files and field values).  Bad
+number of summary.json to 1e-10, the same files and field values), and so
+does a time-dependent run, also when it is stopped and resumed.  Bad
 ``distribute`` values are refused before meshing, naming the key and the
 allowed forms.
 """
@@ -98,6 +99,23 @@ def test_cli_distributed_run_writes_the_outputs_of_the_run_without(tmp_path):
     h5 = [f for f in files if f.suffix == ".h5"]
     assert len(h5) >= 4         # fluid, gel, cell and the Gamma1 profiles
     assert [d for f in h5 for d in _h5_differences(tmp_path / "spread" / f, tmp_path / "plain" / f)] == []
+
+
+@pytest.mark.slow
+def test_distributed_time_dependent_run_and_its_resume_give_the_answer_without(tmp_path):
+    """Adaptive BDF2 over half a consolidation time on 2 ranks: distributed equals every field on every
+    rank, and a distributed run stopped in its 4th window and resumed from its checkpoint (each group
+    saves and restores its own participants' states) equals the uninterrupted one, each to 1e-9 of the
+    largest value of every physical column (the coupling tolerance, as tests/test_transient_cli.py)."""
+    runs = run_mpi("transient_distributed.py", 2, [str(tmp_path)])
+    assert runs["ranks"] == 2 and runs["checkpoint_windows"] >= 1
+    physical = [c for c in runs["plain"] if c not in ("iterations", "residual")]
+    for name, reference in (("distributed", "plain"), ("resumed", "distributed")):
+        one, two = runs[reference], runs[name]
+        assert len(two["t"]) == len(one["t"]) > runs["checkpoint_windows"] + 2, (name, two["t"], one["t"])
+        for column in physical:
+            a, b = np.asarray(two[column]), np.asarray(one[column])
+            assert np.abs(a - b).max() <= 1e-9 * max(np.abs(b).max(), 1e-300), (name, column)
 
 
 @pytest.mark.parametrize("spec, message", [

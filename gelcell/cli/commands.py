@@ -69,13 +69,8 @@ def _check_coupling(config: RunConfig, transient: bool = False) -> None:
     """The resolved ``[coupling]`` table of a partitioned run is valid (ParameterError naming the key)."""
     if not config.solver.monolithic:
         from gelcell.coupled.defaults import partitioned_config
-        coupling = partitioned_config(config.case, config.coupling, transient=transient,
-                                      gamma2=config.solver.gamma2, ranks=MPI.COMM_WORLD.size)
-        if coupling.get("distribute") and transient:
-            raise ParameterError(
-                f"parameter 'coupling.distribute' = {coupling['distribute']!r} (--distribute) is for steady runs: "
-                f"a time-dependent run (time.transient, --transient) does not run its participants in separate "
-                f"process groups yet; drop one of the two")
+        partitioned_config(config.case, config.coupling, transient=transient, gamma2=config.solver.gamma2,
+                           ranks=MPI.COMM_WORLD.size)
 
 
 # --------------------------------------------------------------------------- mesh
