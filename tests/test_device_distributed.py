@@ -1,7 +1,8 @@
 """The device with its participants in separate process groups (``[coupling] distribute``).
 
 The 2D shear device with a cell (mesh size 3), parallel- and serial-implicit,
-distributed "fluid:1,gel+cell:1" on 2 ranks against one process: the same
+distributed "fluid:1,gel+cell:1" on 2 ranks and "fluid:1,gel+cell:2" on 3
+(the gel and the cell on 2 ranks of their own) against one process: the same
 iterations, interface data and fields (to 1e-10).  ``gelcell run
 --distribute`` on 2 ranks writes the outputs of the run without it (every
 number of summary.json to 1e-10, the same files and field values), and so
@@ -36,12 +37,18 @@ def _relative(a, b) -> float:
     return float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300))
 
 
-def test_distributed_device_gives_the_one_process_answer():
-    single = run_mpi("device_distributed.py", 1, ["single"])
-    distributed = run_mpi("device_distributed.py", 2, ["distributed"])
-    assert distributed["ranks"] == 2
+@pytest.fixture(scope="module")
+def one_process():
+    return run_mpi("device_distributed.py", 1, ["single"])
+
+
+@pytest.mark.parametrize("ranks, spec", [(2, "fluid:1,gel+cell:1"), (3, "fluid:1,gel+cell:2")],
+                         ids=["1+1 ranks", "1+2 ranks"])
+def test_distributed_device_gives_the_one_process_answer(one_process, ranks, spec):
+    distributed = run_mpi("device_distributed.py", ranks, [spec])
+    assert distributed["ranks"] == ranks
     for scheme in ("parallel", "serial"):
-        one, two = single["schemes"][scheme], distributed["schemes"][scheme]
+        one, two = one_process["schemes"][scheme], distributed["schemes"][scheme]
         assert one["converged"] and two["converged"]
         assert two["iterations"] == one["iterations"], scheme
         assert set(two["data"]) == set(one["data"])

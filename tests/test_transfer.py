@@ -1,7 +1,8 @@
 """femtools.transfer.NodalTransfer from a space on a process group to a space on the world.
 
-The source lives on a sub-communicator (the first half of the ranks, like a
-group of ``coupling.Distribution``; on 2 ranks groups of 1 + 1) and is
+The source lives on a sub-communicator (the first half of the ranks, rounded
+up, like a group of ``coupling.Distribution``: on 2 ranks groups of 1 + 1, on
+3 of 2 + 1) and is
 ``None`` on the other ranks; the copy on the world mesh must equal the same
 expression evaluated there.  On one rank the group is the world.
 """
@@ -19,8 +20,8 @@ from femtools.transfer import NodalTransfer
 
 
 def _group(world: MPI.Comm):
-    """The communicator of the first half of the ranks (None on the others) and whether this rank is in it."""
-    inside = world.rank < max(1, world.size // 2)
+    """The communicator of the first half of the ranks (None on the others) and the split one (to free)."""
+    inside = world.rank < (world.size + 1) // 2
     group = world.Split(0 if inside else 1, world.rank)
     return (group if inside else None), group
 
