@@ -86,7 +86,8 @@ class PartitionedBackend:
         return {"scheme": self.config["scheme"], "acceleration": acc["type"],
                 "time_windows_reused": acc.get("time_windows_reused"),
                 "robin_coefficient": self.device.alpha_n, "gamma2": self.device.gamma2,
-                "jacobian_prior": self.prior_description}
+                "jacobian_prior": self.prior_description,
+                "distribute": self.device.distribute}
 
     @property
     def prior_description(self) -> str:

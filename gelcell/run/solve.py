@@ -112,7 +112,7 @@ def _coupling_summary(device: Device, config: dict, result: cp.CouplingResult, r
         "iterations": result.iterations, "converged": result.converged,
         "reason": result.reason, "reused": reused, "residual_history": result.residual_history,
         "relaxation": result.relaxation,
-        "distribute": None if device.distribution is None else device.distribution.spec}
+        "distribute": device.distribute}
 
 
 def solver_summary(device: Device) -> dict:
