@@ -108,7 +108,6 @@ def test_cli_distributed_run_writes_the_outputs_of_the_run_without(tmp_path):
     assert [d for f in h5 for d in _h5_differences(tmp_path / "spread" / f, tmp_path / "plain" / f)] == []
 
 
-@pytest.mark.slow
 def test_distributed_time_dependent_run_and_its_resume_give_the_answer_without(tmp_path):
     """Adaptive BDF2 over half a consolidation time on 2 ranks: distributed equals every field on every
     rank, and a distributed run stopped in its 4th window and resumed from its checkpoint (each group

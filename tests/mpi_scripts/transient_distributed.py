@@ -1,4 +1,4 @@
-"""A time-dependent run of the 2D shear device with a cell (mesh size 3, adaptive BDF2 over half a
+"""A time-dependent run of the 2D shear device with a cell (mesh size 6, adaptive BDF2 over half a
 consolidation time): with every field on every rank, distributed ("fluid:1,gel+cell:1") and distributed,
 stopped in its 4th window and resumed from its checkpoint.  Prints (rank 0) the time series of the three
 runs and the windows the checkpoint held, as JSON.
@@ -30,7 +30,7 @@ class Interrupt(Exception):
 
 
 def config(distribute: str | None) -> RunConfig:
-    params = CaseParameters.default("shear", True).with_mesh_size(3)
+    params = CaseParameters.default("shear", True).with_mesh_size(6)
     tau = time_scales(params)["consolidation"]
     settings = TimeSettings(transient=True, dt=tau / 10, t_end=tau / 2, scheme="bdf2", adaptive=True,
                             time_tol=1e-2, output_every=2)
