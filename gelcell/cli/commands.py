@@ -69,13 +69,8 @@ def _check_coupling(config: RunConfig, transient: bool = False) -> None:
     """The resolved ``[coupling]`` table of a partitioned run is valid (ParameterError naming the key)."""
     if not config.solver.monolithic:
         from gelcell.coupled.defaults import partitioned_config
-        coupling = partitioned_config(config.case, config.coupling, transient=transient,
-                                      gamma2=config.solver.gamma2, ranks=MPI.COMM_WORLD.size)
-        if coupling.get("distribute"):
-            raise ParameterError(
-                f"parameter 'coupling.distribute' = {coupling['distribute']!r} (--distribute) is valid, but "
-                f"gelcell run does not write the outputs of a distributed run yet (each field lives on its "
-                f"own ranks); run it through gelcell.coupled.Device(..., distribute=...) (docs/coupling.md)")
+        partitioned_config(config.case, config.coupling, transient=transient, gamma2=config.solver.gamma2,
+                           ranks=MPI.COMM_WORLD.size)
 
 
 # --------------------------------------------------------------------------- mesh

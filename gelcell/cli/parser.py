@@ -208,7 +208,8 @@ def _add_solver_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--distribute", metavar="GROUPS", default=None,
                    help="participants in separate MPI process groups: 'name[+name...][:ranks],...', e.g. "
                         "'fluid:1,gel+cell:1' on 2 ranks (ranks omitted: the ranks left split evenly); "
-                        "checked before meshing; the run itself: gelcell.coupled.Device (coupling.distribute)")
+                        "checked before meshing; the outputs are those of the run without it, each field "
+                        "copied from its group for the post-processing (coupling.distribute)")
     g.add_argument("--solver", choices=SOLVER_KINDS, default=None,
                    help="the field solvers' linear solves: direct (MUMPS; default), iterative (Krylov with "
                         "multigrid, femtools.krylov) or auto (direct in 2D and for small 3D fields, iterative "

@@ -106,6 +106,11 @@ class Device:
         #: why the default went without its linearized prior (None: it did not)
         self.prior_declined: str | None = None
 
+    @property
+    def distribute(self) -> str | None:
+        """The spec of the process groups (``distribute``), None if every field runs on every rank."""
+        return None if self.distribution is None else self.distribution.spec
+
     def is_local(self, field: str) -> bool:
         """Whether ``field``'s solver runs on this rank (always, unless the device is distributed)."""
         return self.distribution is None or self.distribution.is_local(field)

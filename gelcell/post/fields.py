@@ -27,8 +27,9 @@ from femtools.functions import integrate
 from femtools.transfer import NodalTransfer
 from gelcell.case import CaseParameters
 from gelcell.geometry import DeviceLayout, device_layout
+from gelcell.geometry.meshes import build_meshes
 
-__all__ = ["DeviceFields", "fields_from_device", "fields_from_monolithic", "relative_differences"]
+__all__ = ["DeviceFields", "WorldFields", "fields_from_device", "fields_from_monolithic", "relative_differences"]
 
 
 @dataclasses.dataclass
@@ -94,19 +95,96 @@ class DeviceFields:
 
 
 def fields_from_device(device) -> DeviceFields:
-    """The current fields of a partitioned :class:`gelcell.coupled.device.Device`."""
-    fluid_mesh, fluid_tags = device.meshes.region("fluid")
-    _, gel_tags = device.meshes.region("gel")
-    cell_tags = device.meshes.region("cell")[1] if device.cell is not None else None
-    gel = device.gel
+    """The current fields of a partitioned :class:`gelcell.coupled.device.Device`.
+
+    A distributed device (``distribute``) has each field on its group's
+    ranks only: its fields are then copies on region meshes of the world
+    communicator (:class:`WorldFields`), on every rank as without it.
+    """
+    if device.distribution is not None:
+        return WorldFields(device).fields
+    return _device_fields(device.params, _field_functions(device), device.meshes)
+
+
+#: the functions of a device's fields: ``name: (region, owner field, function of the device)``
+_FIELD_FUNCTIONS = {
+    "fluid_velocity": ("fluid", "fluid", lambda d: d.fluid.velocity),
+    "fluid_pressure": ("fluid", "fluid", lambda d: d.fluid.pressure),
+    "fluid_mesh_displacement": ("fluid", "fluid", lambda d: getattr(d.fluid, "mesh_displacement", None)),
+    "interstitial_velocity": ("gel", "gel", lambda d: d.gel.interstitial_velocity()),
+    "displacement": ("gel", "gel", lambda d: d.gel.displacement()),
+    "pore_pressure": ("gel", "gel", lambda d: d.gel.pore_pressure()),
+    "cell_displacement": ("cell", "cell", lambda d: d.cell.displacement),
+}
+
+
+def _has(device, owner: str) -> bool:
+    """Whether the device has the fields of solver ``owner`` (the cell's only with a cell)."""
+    return owner != "cell" or device.params.with_cell
+
+
+def _field_functions(device) -> dict[str, fem.Function | None]:
+    """``{name: function}`` of the fields of :data:`_FIELD_FUNCTIONS` on this rank (None where not)."""
+    return {name: get(device) if _has(device, owner) and device.is_local(owner) else None
+            for name, (_, owner, get) in _FIELD_FUNCTIONS.items()}
+
+
+def _device_fields(params: CaseParameters, functions: dict, meshes) -> DeviceFields:
+    """The :class:`DeviceFields` of ``functions`` (:func:`_field_functions`) with the tags of ``meshes``."""
     return DeviceFields(
-        params=device.params, fluid_velocity=device.fluid.velocity, fluid_pressure=device.fluid.pressure,
-        interstitial_velocity=gel.interstitial_velocity(), displacement=gel.displacement(),
-        pore_pressure=gel.pore_pressure(),
-        cell_displacement=None if device.cell is None else device.cell.displacement,
-        fluid_tags=fluid_tags, gel_tags=gel_tags, cell_tags=cell_tags,
-        fluid_mesh_displacement=getattr(device.fluid, "mesh_displacement", None),
-        layout=device.meshes.layout, cell_regions=device.meshes.cell_tags)
+        params=params, **functions, fluid_tags=meshes.region("fluid")[1], gel_tags=meshes.region("gel")[1],
+        cell_tags=meshes.region("cell")[1] if functions["cell_displacement"] is not None else None,
+        layout=meshes.layout, cell_regions=meshes.cell_tags)
+
+
+class WorldFields:
+    """The fields of a distributed device, copied onto region meshes of its world communicator.
+
+    Each field's solver runs on its process group only, on the group's own
+    region meshes.  This builds the region meshes once more on the world
+    communicator (the mesh cache makes it cheap: they come from the same
+    gmsh mesh, so their nodes coincide with the groups') and copies each
+    field from its group node by node (:class:`~femtools.transfer.NodalTransfer`
+    over the world communicator), as the monolithic reference's fields are
+    copied onto the region meshes.  The post-processing then runs on
+    :attr:`fields` on every rank, unchanged.  Collective on the world
+    communicator.
+
+    Args:
+        device: a :class:`gelcell.coupled.device.Device` built with ``distribute``.
+        meshes: its region meshes on ``device.comm`` (default: built here).
+    """
+
+    def __init__(self, device, meshes=None):
+        self.device = device
+        self.meshes = meshes or build_meshes(device.params, device.comm, whole=False)
+        local = _field_functions(device)
+        self._copies: dict[str, tuple[NodalTransfer, fem.Function]] = {}
+        spaces: dict = {}
+        world = dict.fromkeys(local)
+        for name, (region, owner, _) in _FIELD_FUNCTIONS.items():
+            # the element of the field (None if this device has no such field), known on every rank
+            if not _has(device, owner):
+                continue
+            element = device._from_field(owner, lambda f=local[name]: None if f is None else f.ufl_element())
+            if element is None:
+                continue
+            if (region, element) not in spaces:
+                spaces[region, element] = fem.FunctionSpace(self.meshes.region(region)[0], element)
+            V, src = spaces[region, element], local[name]
+            # one transfer per field: the group's fields of one element may have different dof orders
+            transfer = NodalTransfer(None if src is None else src.function_space, V, comm=device.comm)
+            world[name] = fem.Function(V, name=name)
+            self._copies[name] = (transfer, world[name])
+        self.fields = _device_fields(device.params, world, self.meshes)
+        self.update()
+
+    def update(self) -> DeviceFields:
+        """Copy the device's current fields into :attr:`fields` (collective); returns them."""
+        local = _field_functions(self.device)
+        for name, (transfer, dst) in self._copies.items():
+            transfer.apply(local[name], dst)
+        return self.fields
 
 
 def _region_spaces(msh):

@@ -25,7 +25,7 @@ from gelcell.coupled.device import Device
 from gelcell.coupled.monolithic import MonolithicSolver, monolithic_coefficients
 from gelcell.errors import ParameterError
 from gelcell.geometry.meshes import build_meshes
-from gelcell.post.fields import DeviceFields, fields_from_device
+from gelcell.post.fields import DeviceFields, WorldFields, fields_from_device
 
 __all__ = ["WindowOutcome", "PartitionedBackend", "MonolithicBackend"]
 
@@ -44,7 +44,9 @@ class PartitionedBackend:
     def __init__(self, device: Device, config: typing.Mapping, comm: MPI.Comm):
         self.device, self.comm = device, comm
         self.config, self.scheme = device.window_scheme(config)
-        self.fields = fields_from_device(device)
+        # distributed: copies on the world's region meshes, renewed by update_fields
+        self._world = WorldFields(device) if device.distribution is not None else None
+        self.fields = fields_from_device(device) if self._world is None else self._world.fields
 
     def window(self, t: float, dt: float) -> WindowOutcome:
         if abs(self.scheme.time - t) > 1e-12 * max(abs(t), dt):
@@ -56,7 +58,10 @@ class PartitionedBackend:
         return WindowOutcome(rec.iterations, residual)
 
     def update_fields(self) -> None:
-        gel, f = self.device.gel, self.fields
+        if self._world is not None:
+            self._world.update()
+            return
+        gel, f = self.device.gel, self.fields        # the fluid's and the cell's are the solvers' own
         gel.interstitial_velocity(out=f.interstitial_velocity)
         gel.displacement(out=f.displacement)
         gel.pore_pressure(out=f.pore_pressure)
@@ -81,7 +86,8 @@ class PartitionedBackend:
         return {"scheme": self.config["scheme"], "acceleration": acc["type"],
                 "time_windows_reused": acc.get("time_windows_reused"),
                 "robin_coefficient": self.device.alpha_n, "gamma2": self.device.gamma2,
-                "jacobian_prior": self.prior_description}
+                "jacobian_prior": self.prior_description,
+                "distribute": self.device.distribute}
 
     @property
     def prior_description(self) -> str:

@@ -25,15 +25,23 @@ def device_unknowns(device) -> dict[str, int]:
 
     ``fluid``: velocity and pressure; ``mesh_motion``: the fluid mesh's
     displacement (finite kinematics only); ``gel``: its mixed space; ``cell``
-    (with a cell): its displacement.
+    (with a cell): its displacement.  Each is counted by its field's solver,
+    on its process group if the device is distributed (the same numbers on
+    every rank).
     """
-    out = {"fluid": space_unknowns(device.fluid.W)}
-    mesh_space = getattr(device.fluid, "mesh_space", None)
+    out = device._from_field("fluid", lambda: _fluid_unknowns(device.fluid))
+    out["gel"] = device._from_field("gel", lambda: space_unknowns(device.gel.W))
+    if device.params.with_cell:
+        out["cell"] = device._from_field("cell", lambda: space_unknowns(device.cell.displacement.function_space))
+    return out
+
+
+def _fluid_unknowns(fluid) -> dict[str, int]:
+    """``fluid`` and (with a moving mesh) ``mesh_motion`` of :func:`device_unknowns`."""
+    out = {"fluid": space_unknowns(fluid.W)}
+    mesh_space = getattr(fluid, "mesh_space", None)
     if mesh_space is not None:
         out["mesh_motion"] = space_unknowns(mesh_space)
-    out["gel"] = space_unknowns(device.gel.W)
-    if device.cell is not None:
-        out["cell"] = space_unknowns(device.cell.displacement.function_space)
     return out
 
 

@@ -27,7 +27,7 @@ from gelcell.post.fields import DeviceFields, fields_from_device, fields_from_mo
 from gelcell.post.quantities import summarize
 from gelcell.post.residuals import interface_residuals
 from gelcell.post.validity import check_case
-from gelcell.run.cost import cost_summary, device_unknowns, monolithic_unknowns, space_unknowns
+from gelcell.run.cost import cost_summary, device_unknowns, monolithic_unknowns
 
 __all__ = ["CaseRun", "solve_partitioned", "solve_monolithic", "solver_summary", "MONOLITHIC_SOLVER"]
 
@@ -65,7 +65,7 @@ def solve_partitioned(params: CaseParameters, coupling: typing.Mapping | None = 
     params = described(params)
     check_case(params, solver)
     config = partitioned_config(params, coupling, gamma2=gamma2)
-    choice = {"solver": solver, "petsc_options": petsc_options}
+    choice = {"solver": solver, "petsc_options": petsc_options, "distribute": config.get("distribute")}
     device = Device(params, comm, robin_coefficient=robin_coefficient, gamma2=gamma2, **choice)
     t1 = time.perf_counter()
     key = None
@@ -89,8 +89,9 @@ def solve_partitioned(params: CaseParameters, coupling: typing.Mapping | None = 
     summary["method"] = "partitioned"
     summary["coupling"] = _coupling_summary(device, config, result, reused)
     summary["solver"] = solver_summary(device)
-    summary["mesh"] = _mesh_summary(device, fields)
-    summary["cost"] = cost_summary(device_unknowns(device), comm)
+    unknowns = device_unknowns(device)
+    summary["mesh"] = _mesh_summary(unknowns, fields)
+    summary["cost"] = cost_summary(unknowns, comm)
     summary["timing"] = {"setup": device.mesh_time + device.setup_time, "coupling": t_solve,
                          **{f"solve_{k}": v for k, v in result.timing.items()},
                          "total": time.perf_counter() - t0}
@@ -110,7 +111,8 @@ def _coupling_summary(device: Device, config: dict, result: cp.CouplingResult, r
         "interface_unknowns": device.scheme.layout.size,
         "iterations": result.iterations, "converged": result.converged,
         "reason": result.reason, "reused": reused, "residual_history": result.residual_history,
-        "relaxation": result.relaxation}
+        "relaxation": result.relaxation,
+        "distribute": device.distribute}
 
 
 def solver_summary(device: Device) -> dict:
@@ -118,13 +120,12 @@ def solver_summary(device: Device) -> dict:
     return {"kind": device.solver, "fields": dict(device.solver_kinds)}
 
 
-def _mesh_summary(device: Device, fields) -> dict:
-    """Global cells and degrees of freedom of each field's mesh."""
-    mesh = {"fluid": {"cells": _cells(device.fluid.velocity), "dofs": space_unknowns(device.fluid.W)},
-            "gel": {"cells": _cells(fields.displacement), "dofs": space_unknowns(device.gel.W)}}
-    if device.cell is not None:
-        mesh["cell"] = {"cells": _cells(device.cell.displacement),
-                        "dofs": space_unknowns(device.cell.displacement.function_space)}
+def _mesh_summary(unknowns: dict[str, int], fields: DeviceFields) -> dict:
+    """Global cells and degrees of freedom of each field's mesh (``unknowns``: :func:`device_unknowns`)."""
+    mesh = {"fluid": {"cells": _cells(fields.fluid_velocity), "dofs": unknowns["fluid"]},
+            "gel": {"cells": _cells(fields.displacement), "dofs": unknowns["gel"]}}
+    if fields.cell_displacement is not None:
+        mesh["cell"] = {"cells": _cells(fields.cell_displacement), "dofs": unknowns["cell"]}
     return mesh
 
 

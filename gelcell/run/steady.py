@@ -97,7 +97,9 @@ def _without_cell(config: RunConfig, comm: MPI.Comm, say) -> tuple[dict, dict]:
     """The case without its cell, solved first (partitioned): its Gamma1 profiles (overlaid) and its summary."""
     say("gelcell: first the same case without the cell, for the profile comparison")
     params = config.case.replace(with_cell=False)
-    ref = solve_partitioned(params, config.coupling, comm=comm, verbose=config.output.progress, checks=False,
+    # every field on every rank: the groups of [coupling] distribute name the cell
+    coupling = {k: v for k, v in (config.coupling or {}).items() if k != "distribute"}
+    ref = solve_partitioned(params, coupling, comm=comm, verbose=config.output.progress, checks=False,
                             gamma2=config.solver.gamma2, **solver_arguments(config))
     return gamma_profiles(ref.fields, "Gamma1"), {"summary_no_cell.json": report(ref.summary, params)}
 

@@ -63,7 +63,7 @@ def _backend(config: RunConfig, coupling: dict | None, comm: MPI.Comm):
     if coupling is None:
         return MonolithicBackend(config.case, comm, settings.scheme, settings.waveform)
     device = Device(config.case, comm, gamma2=config.solver.gamma2, transient=True, time_scheme=settings.scheme,
-                    inflow=settings.waveform, **solver_arguments(config))
+                    inflow=settings.waveform, distribute=coupling.get("distribute"), **solver_arguments(config))
     return PartitionedBackend(device, {**coupling, "verbose": False}, comm)
 
 

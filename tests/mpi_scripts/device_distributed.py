@@ -2,8 +2,9 @@
 distributed ("fluid:1,gel+cell:1" on 2 ranks); prints (rank 0) per scheme the iterations, every
 interface data and the norms of every field, as JSON.
 
-Arguments: MODE (``single`` or ``distributed``).  The linearized prior is computed, not read from
-the disk cache, so that the distributed run computes its participants' Jacobians through MPI.
+Arguments: MODE (``single``, ``distributed`` or a ``distribute`` spec, e.g. ``fluid:1,gel+cell:2`` on 3
+ranks), then optionally the schemes (default: parallel serial).  The linearized prior is computed, not
+read from the disk cache, so that the distributed run computes its participants' Jacobians through MPI.
 """
 import json
 import os
@@ -33,11 +34,11 @@ def field_norms(device) -> dict:
     return out
 
 
-def run(scheme: str, distributed: bool) -> dict:
+def run(scheme: str, distribute: str | None) -> dict:
     params = CaseParameters.default("shear", True).with_mesh_size(3)
     table = {"scheme": f"{scheme}-implicit"}
-    if distributed:
-        table["distribute"] = DISTRIBUTE
+    if distribute:
+        table["distribute"] = distribute
     config = partitioned_config(params, table)
     device = Device(params, MPI.COMM_WORLD, distribute=config.get("distribute"))
     result = device.solve(config, verbose=False)
@@ -47,9 +48,10 @@ def run(scheme: str, distributed: bool) -> dict:
 
 
 def main() -> int:
-    distributed = sys.argv[1] == "distributed"
-    out = {"ranks": MPI.COMM_WORLD.size,
-           "schemes": {scheme: run(scheme, distributed) for scheme in ("parallel", "serial")}}
+    mode = sys.argv[1]
+    distribute = None if mode == "single" else DISTRIBUTE if mode == "distributed" else mode
+    schemes = sys.argv[2:] or ["parallel", "serial"]
+    out = {"ranks": MPI.COMM_WORLD.size, "schemes": {scheme: run(scheme, distribute) for scheme in schemes}}
     if MPI.COMM_WORLD.rank == 0:
         print(json.dumps(out))
     return 0
