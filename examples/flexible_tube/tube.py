@@ -31,12 +31,22 @@ import numpy as np
 
 import coupling as cp
 
-__all__ = ["TubeParameters", "TubeFlow", "TubeWall", "tube_data", "monolithic_window", "newton"]
+__all__ = ["TubeParameters", "TubeFlow", "TubeWall", "tube_data", "monolithic_window", "newton",
+           "precice_tube", "initial_state"]
+
+DISCRETISATIONS = ("cells", "nodes")
 
 
 @dataclass(frozen=True)
 class TubeParameters:
-    """The tube, the fluid and the inflow v_in(t) = v0 (1 + amplitude sin^2(pi t / period))."""
+    """The tube, the fluid, the inflow and the discretisation.
+
+    The inflow is v_in(t) = v0 (1 + amplitude sin^2(pi t / period)), or with
+    ``inflow_shape = "sin"`` v0 (1 + amplitude sin(pi t / period)).
+    ``discretisation``: ``"cells"`` (the stabilised finite volumes of the
+    module docstring) or ``"nodes"`` (preCICE's elastic-tube-1d scheme);
+    ``exchanged``: the wall's output, ``"radius"`` or ``"area"``.
+    """
 
     length: float = 0.05          # m
     r0: float = 0.005             # m
@@ -47,7 +57,22 @@ class TubeParameters:
     amplitude: float = 0.1
     period: float = 1.0           # s
     p_out: float = 0.0            # Pa (also the reference pressure p0 of the wall)
-    cells: int = 100
+    cells: int = 100              # cells; with discretisation = "nodes": cells + 1 nodes
+    discretisation: str = "cells"
+    inflow_shape: str = "sin2"
+    exchanged: str = "radius"
+
+    def __post_init__(self):
+        if self.discretisation not in DISCRETISATIONS:
+            raise ValueError(f"discretisation = {self.discretisation!r}: one of {DISCRETISATIONS}")
+        if self.inflow_shape not in ("sin2", "sin"):
+            raise ValueError(f"inflow_shape = {self.inflow_shape!r}: 'sin2' or 'sin'")
+        if self.exchanged not in ("radius", "area"):
+            raise ValueError(f"exchanged = {self.exchanged!r}: 'radius' or 'area'")
+
+    @property
+    def points_count(self) -> int:
+        return self.cells + 1 if self.discretisation == "nodes" else self.cells
 
     @property
     def a0(self) -> float:
@@ -59,28 +84,68 @@ class TubeParameters:
         return self.E * self.h / (2.0 * self.rho * self.r0)
 
     def inflow(self, t: float) -> float:
-        return self.v0 * (1.0 + self.amplitude * np.sin(np.pi * t / self.period) ** 2)
+        wave = np.sin(np.pi * t / self.period)
+        return self.v0 * (1.0 + self.amplitude * (wave ** 2 if self.inflow_shape == "sin2" else wave))
 
     def points(self) -> np.ndarray:
         dz = self.length / self.cells
-        return np.column_stack([(np.arange(self.cells) + 0.5) * dz, np.zeros(self.cells)])
+        z = np.arange(self.cells + 1) * dz if self.discretisation == "nodes" else (np.arange(self.cells) + 0.5) * dz
+        return np.column_stack([z, np.zeros(z.size)])
 
 
-def newton(residual, x0: np.ndarray, tol: float = 1e-13, max_iterations: int = 30) -> np.ndarray:
-    """Solve residual(x) = 0 by Newton with a finite-difference Jacobian (column by column)."""
+def precice_tube(nodes: int = 101) -> TubeParameters:
+    """preCICE's elastic-tube-1d tutorial (its Python solvers): L = 10, a0 = 1, E = 10^4, rho = 1,
+    v_in = 10 + 3 sin(10 pi t), p_out = 0, 100 cells (101 nodes), the nodal scheme, the area exchanged."""
+    return TubeParameters(length=10.0, r0=1.0 / np.sqrt(np.pi), E=1.0e4, h=1.0, rho=1.0, v0=10.0,
+                          amplitude=0.3, period=0.1, p_out=0.0, cells=nodes - 1,
+                          discretisation="nodes", inflow_shape="sin", exchanged="area")
+
+
+def _jacobian(residual, x: np.ndarray, f: np.ndarray, nodes: int | None, reach: int) -> np.ndarray:
+    """Finite-difference Jacobian: column by column, or (``nodes``) by groups of columns.
+
+    With ``nodes``, unknown j and equation k belong to node ``j % nodes`` and
+    ``k % nodes``, and an equation depends only on unknowns within ``reach``
+    nodes of its own: unknowns ``2 reach + 1`` nodes apart are perturbed together.
+    """
+    step = 1e-7 * np.maximum(np.abs(x), 1e-3)
+    jac = np.zeros((f.size, x.size))
+    if nodes is None:
+        for j in range(x.size):
+            xj = x.copy()
+            xj[j] += step[j]
+            jac[:, j] = (residual(xj) - f) / step[j]
+        return jac
+    stride = 2 * reach + 1
+    rows = np.arange(f.size)
+    row_node = rows % nodes
+    for block in range(x.size // nodes):
+        for colour in range(stride):
+            cols = block * nodes + np.arange(colour, nodes, stride)
+            xj = x.copy()
+            xj[cols] += step[cols]
+            df = residual(xj) - f
+            # the one perturbed node within reach of each equation's node
+            near = colour + stride * np.round((row_node - colour) / stride).astype(int)
+            ok = (near >= 0) & (near < nodes)
+            j = block * nodes + near[ok]
+            jac[rows[ok], j] = df[ok] / step[j]
+    return jac
+
+
+def newton(residual, x0: np.ndarray, tol: float = 1e-13, max_iterations: int = 30,
+           nodes: int | None = None, reach: int = 2, scale: float | None = None) -> np.ndarray:
+    """Solve residual(x) = 0 by Newton with a finite-difference Jacobian (:func:`_jacobian`).
+
+    Stops at ``‖residual‖ <= tol * scale``; ``scale`` defaults to max(‖residual(x0)‖, 1).
+    """
     x = x0.copy()
     f = residual(x)
-    scale = max(np.linalg.norm(f), 1.0)
+    scale = max(np.linalg.norm(f), 1.0) if scale is None else scale
     for _ in range(max_iterations):
         if np.linalg.norm(f) <= tol * scale:
             return x
-        jac = np.empty((f.size, x.size))
-        for j in range(x.size):
-            step = 1e-7 * max(abs(x[j]), 1e-3)
-            xj = x.copy()
-            xj[j] += step
-            jac[:, j] = (residual(xj) - f) / step
-        x = x - np.linalg.solve(jac, f)
+        x = x - np.linalg.solve(_jacobian(residual, x, f, nodes, reach), f)
         f = residual(x)
     raise RuntimeError(f"tube Newton: residual {np.linalg.norm(f):.3e} after {max_iterations} iterations")
 
@@ -101,24 +166,62 @@ def flow_residual(params: TubeParameters, v, p, a, v_n, a_n, v_in: float, dt: fl
     return np.concatenate([continuity, momentum])
 
 
+def nodal_flow_residual(params: TubeParameters, v, p, a, v_n, p_n, a_n, v_in: float, dt: float) -> np.ndarray:
+    """The nodal scheme's equations (module docstring), ordered so that equation k sits on node k % (m + 1)."""
+    dz, rho, c2 = params.length / params.cells, params.rho, params.c2
+    q, q_n = p / rho, p_n / rho
+    a_f, v_f, q_f = 0.5 * (a[:-1] + a[1:]), 0.5 * (v[:-1] + v[1:]), 0.5 * (q[:-1] + q[1:])
+    flux = a_f * v_f                                                   # faces 1/2 ... m-1/2
+    continuity = dz * (a[1:-1] - a_n[1:-1]) / dt + np.diff(flux)
+    momentum = (dz * (a[1:-1] * v[1:-1] - a_n[1:-1] * v_n[1:-1]) / dt + flux[1:] * v[1:-1] - flux[:-1] * v[:-2]
+                + np.diff(a_f * q_f) - q[1:-1] * np.diff(a_f))
+    w = np.sqrt(c2 - q_n[-1] / 2.0) - (v[-1] - v_n[-1]) / 4.0
+    first = np.concatenate([[v[0] - v_in], continuity, [v[-1] - 2.0 * v[-2] + v[-3]]])
+    second = np.concatenate([[q[0] - 2.0 * q[1] + q[2]], momentum, [q[-1] - 2.0 * (c2 - w * w)]])
+    return np.concatenate([first, second])
+
+
 def wall_radius(params: TubeParameters, p: np.ndarray) -> np.ndarray:
     """r(p) of the ring model: a = a0 ((p0/rho - 2 c^2) / (p/rho - 2 c^2))^2."""
     ratio = (params.p_out / params.rho - 2.0 * params.c2) / (p / params.rho - 2.0 * params.c2)
     return params.r0 * np.abs(ratio)
 
 
+def _nodal_newton(v: np.ndarray, p: np.ndarray) -> dict:
+    """Newton options of the nodal scheme: the Jacobian by groups of nodes, and the tutorial's
+    measure ‖residual‖ / ‖(v, p)‖ (its limit 1e-10, here 1e-12)."""
+    return {"nodes": v.size, "tol": 1e-12, "scale": float(np.linalg.norm(np.concatenate([v, p])))}
+
+
+def wall_output(params: TubeParameters, p: np.ndarray) -> np.ndarray:
+    """What the wall writes: its radius, or (``exchanged = "area"``) its area."""
+    r = wall_radius(params, p)
+    return np.pi * r ** 2 if params.exchanged == "area" else r
+
+
+def _area(params: TubeParameters, values: np.ndarray) -> np.ndarray:
+    return values if params.exchanged == "area" else np.pi * values ** 2
+
+
+def initial_state(params: TubeParameters) -> dict:
+    """Velocity v0 = v_in(0), pressure p_out, radius r0 at every point."""
+    n = params.points_count
+    return {"v": np.full(n, params.inflow(0.0)), "p": np.full(n, params.p_out), "r": np.full(n, params.r0)}
+
+
 class TubeFlow(cp.Participant):
-    """The flow solver: reads ``radius``, writes ``pressure`` (one value per cell)."""
+    """The flow solver: reads ``radius`` (or ``area``), writes ``pressure`` (one value per point)."""
 
     name = "flow"
 
     def __init__(self, params: TubeParameters):
         self.params = params
-        m = params.cells
-        self.v, self.p = np.full(m, params.v0), np.full(m, params.p_out)
-        self.a = np.full(m, params.a0)
-        self.v_n, self.a_n = self.v.copy(), self.a.copy()
+        state = initial_state(params)
+        self.v, self.p = state["v"], state["p"]
+        self.a = np.pi * state["r"] ** 2
+        self.v_n, self.p_n, self.a_n = self.v.copy(), self.p.copy(), self.a.copy()
         self.t_new, self.dt = 0.0, 1.0
+        self.outlet: list[tuple[float, float, float]] = []   # (t, area, pressure) at the last point per window
 
     def interface_points(self, mesh_name):
         return self.params.points()
@@ -127,35 +230,41 @@ class TubeFlow(cp.Participant):
         return self.p[:, None].copy()
 
     def begin_window(self, t, dt):
-        self.v_n, self.a_n = self.v.copy(), self.a.copy()   # the state at t: the last window's end
+        # the state at t: the last window's end
+        self.v_n, self.p_n, self.a_n = self.v.copy(), self.p.copy(), self.a.copy()
         self.t_new, self.dt = t + dt, dt
 
     def end_window(self, accepted):
         # the window's end area is the accepted radius (the wall's last output), as in the monolithic solve
-        self.a = np.pi * accepted["radius"][:, 0] ** 2
+        self.a = _area(self.params, accepted[self.params.exchanged][:, 0])
+        self.outlet.append((self.t_new, float(self.a[-1]), float(self.p[-1])))
 
     def save_state(self):
-        return {k: getattr(self, k).copy() for k in ("v", "p", "a", "v_n", "a_n")}
+        return {k: getattr(self, k).copy() for k in ("v", "p", "a", "v_n", "p_n", "a_n")}
 
     def load_state(self, state):
         for k, value in state.items():
             setattr(self, k, np.array(value, dtype=float))
 
     def solve(self, inputs):
-        m = self.params.cells
-        self.a = np.pi * inputs["radius"][:, 0] ** 2
-        v_in = self.params.inflow(self.t_new)
-
-        def residual(x):
-            return flow_residual(self.params, x[:m], x[m:], self.a, self.v_n, self.a_n, v_in, self.dt)
-
-        x = newton(residual, np.concatenate([self.v, self.p]))
-        self.v, self.p = x[:m], x[m:]
+        params, n = self.params, self.params.points_count
+        self.a = _area(params, inputs[params.exchanged][:, 0])
+        v_in = params.inflow(self.t_new)
+        if params.discretisation == "nodes":
+            def residual(x):
+                return nodal_flow_residual(params, x[:n], x[n:], self.a, self.v_n, self.p_n, self.a_n,
+                                           v_in, self.dt)
+            x = newton(residual, np.concatenate([self.v, self.p]), **_nodal_newton(self.v, self.p))
+        else:
+            def residual(x):
+                return flow_residual(params, x[:n], x[n:], self.a, self.v_n, self.a_n, v_in, self.dt)
+            x = newton(residual, np.concatenate([self.v, self.p]))
+        self.v, self.p = x[:n], x[n:]
         return {"pressure": self.p[:, None].copy()}
 
 
 class TubeWall(cp.Participant):
-    """The wall solver (independent rings, no inertia): reads ``pressure``, writes ``radius``."""
+    """The wall solver (independent rings, no inertia): reads ``pressure``, writes ``radius`` (or ``area``)."""
 
     name = "wall"
 
@@ -166,7 +275,7 @@ class TubeWall(cp.Participant):
         return self.params.points()
 
     def initial_data(self, data_name):
-        return np.full((self.params.cells, 1), self.params.r0)
+        return wall_output(self.params, np.full((self.params.points_count, 1), self.params.p_out))
 
     def save_state(self):
         return {}
@@ -175,23 +284,30 @@ class TubeWall(cp.Participant):
         pass
 
     def solve(self, inputs):
-        return {"radius": wall_radius(self.params, inputs["pressure"][:, 0])[:, None]}
+        return {self.params.exchanged: wall_output(self.params, inputs["pressure"][:, 0])[:, None]}
 
 
-def tube_data() -> list[cp.Data]:
+def tube_data(params: TubeParameters | None = None) -> list[cp.Data]:
+    """``pressure`` (flow -> wall) and ``radius`` or ``area`` (wall -> flow)."""
+    exchanged = "radius" if params is None else params.exchanged
     return [cp.Data("pressure", "wall", 1, "flow", ("wall",)),
-            cp.Data("radius", "wall", 1, "wall", ("flow",))]
+            cp.Data(exchanged, "wall", 1, "wall", ("flow",))]
 
 
 def monolithic_window(params: TubeParameters, state: dict, t: float, dt: float) -> dict:
     """One backward-Euler window of flow and wall solved together by Newton; returns the new state."""
-    m = params.cells
+    m = params.points_count
     v_in = params.inflow(t + dt)
+    a_n = np.pi * state["r"] ** 2
 
     def residual(x):
         v, p, r = x[:m], x[m:2 * m], x[2 * m:]
-        flow = flow_residual(params, v, p, np.pi * r ** 2, state["v"], np.pi * state["r"] ** 2, v_in, dt)
+        if params.discretisation == "nodes":
+            flow = nodal_flow_residual(params, v, p, np.pi * r ** 2, state["v"], state["p"], a_n, v_in, dt)
+        else:
+            flow = flow_residual(params, v, p, np.pi * r ** 2, state["v"], a_n, v_in, dt)
         return np.concatenate([flow, (r - wall_radius(params, p)) / params.r0])
 
-    x = newton(residual, np.concatenate([state["v"], state["p"], state["r"]]))
+    nodal = _nodal_newton(state["v"], state["p"]) if params.discretisation == "nodes" else {}
+    x = newton(residual, np.concatenate([state["v"], state["p"], state["r"]]), **nodal)
     return {"v": x[:m], "p": x[m:2 * m], "r": x[2 * m:]}
