@@ -23,9 +23,17 @@ import sys
 
 import pytest
 
-from mpi4py import MPI
+if "PYTEST_XDIST_WORKER" in os.environ:
+    # a pytest-xdist worker inherits the variables of its controller's MPI singleton (PMIx server
+    # address, ess=singleton): without them it starts its own, as a serial pytest does, and the
+    # mpirun and gelcell processes of its tests do not report to the controller's server (they fail)
+    for name in [k for k in os.environ if k.startswith(("PMIX_", "OMPI_MCA_ess", "OMPI_MCA_orte_",
+                                                          "OMPI_MCA_pmix", "OMPI_APP_CTX_"))]:
+        del os.environ[name]
 
-from femtools import petscgarbage
+from mpi4py import MPI  # noqa: E402
+
+from femtools import petscgarbage  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
