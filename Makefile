@@ -32,8 +32,9 @@ $(STAMP): pyproject.toml scripts/ensure-system-packages $(wildcard */__init__.py
 run: setup
 	$(VENV)/bin/gelcell run shear --compare-no-cell --out $(RUN_OUT)
 
+# the serial suite on every core (pytest-xdist; a file's tests stay in one worker, which shares its fixtures)
 test: setup
-	$(PY) -m pytest -q -ra --durations=15
+	$(PY) -m pytest -q -ra --durations=15 -n auto --dist loadfile
 	./scripts/pytest-2-ranks
 
 RUFF      := $(VENV)/bin/ruff

@@ -11,7 +11,11 @@ cache grows (docs/femtools-costs.md).
 whose compilation has finished (FFCx's ``<name>.c.cached`` marker exists) is
 loaded from ``<name><extension suffix>`` directly; anything else (a first
 compilation, a compilation in progress in another process, a marker without
-its library) goes to FFCx's own function, unchanged.
+its library) goes to FFCx's own function, which waits for a compilation in
+progress in another process for at least :data:`WAIT_FOR_OTHER_COMPILATION`
+seconds (FFCx's default, 10 s, is shorter than one 3D form's compilation on a
+loaded machine: a process that found the form half-compiled by another, as
+the parallel test workers do on an empty cache, would fail).
 
 :func:`install` also makes sure that dolfinx's default cache directory
 (``$XDG_CACHE_HOME/fenics``, else ``~/.cache/fenics``) can be written: if
@@ -41,6 +45,8 @@ import tempfile
 __all__ = ["install", "installed", "sort_constants_by_count", "writable_directory"]
 
 _ORIGINAL = "_gelcell_original_get_cached_module"
+#: seconds to wait for another process's compilation of a form before FFCx gives up
+WAIT_FOR_OTHER_COMPILATION = 600
 _log = logging.getLogger(__name__)
 
 
@@ -139,7 +145,7 @@ def install() -> bool:
         path = _cached_library(str(cache_dir), module_name)
         if path is not None:
             return _load(path, module_name, object_names)
-        return original(module_name, object_names, cache_dir, timeout)
+        return original(module_name, object_names, cache_dir, max(timeout, WAIT_FOR_OTHER_COMPILATION))
 
     get_cached_module.__doc__ = original.__doc__
     setattr(jit, _ORIGINAL, original)

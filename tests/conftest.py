@@ -7,10 +7,13 @@
 * ``tests/mpi_run.py`` (``run_mpi``) launches a script on N ranks from a serial
   test and returns the JSON it prints; this directory is put on ``sys.path`` so
   tests can ``from mpi_run import run_mpi``.
-* After each test every rank calls ``gc.collect()``, destroys the dropped PETSc
-  objects of the meshes built by femtools (``femtools.petscgarbage``: petsc4py
-  leaves them on their communicator's garbage list) and meets at a barrier, so
-  that PETSc objects are destroyed collectively (as dolfinx's own conftest does).
+* After each test (and its fixtures' teardown) every rank calls ``gc.collect()``,
+  destroys the dropped PETSc objects of the meshes built by femtools
+  (``femtools.petscgarbage``: petsc4py leaves them on their communicator's
+  garbage list) and meets at a barrier, so that PETSc objects are destroyed
+  collectively (as dolfinx's own conftest does).  The survivors are then frozen
+  (``gc.freeze``) until the test file ends, so each collection traverses only
+  what the test made; after a file's last test everything is collected.
 """
 
 import gc
@@ -20,9 +23,17 @@ import sys
 
 import pytest
 
-from mpi4py import MPI
+if "PYTEST_XDIST_WORKER" in os.environ:
+    # a pytest-xdist worker inherits the variables of its controller's MPI singleton (PMIx server
+    # address, ess=singleton): without them it starts its own, as a serial pytest does, and the
+    # mpirun and gelcell processes of its tests do not report to the controller's server (they fail)
+    for name in [k for k in os.environ if k.startswith(("PMIX_", "OMPI_MCA_ess", "OMPI_MCA_orte_",
+                                                          "OMPI_MCA_pmix", "OMPI_APP_CTX_"))]:
+        del os.environ[name]
 
-from femtools import petscgarbage
+from mpi4py import MPI  # noqa: E402
+
+from femtools import petscgarbage  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
@@ -36,9 +47,16 @@ def pytest_runtest_setup(item):
         pytest.skip("serial-only test")
 
 
-def pytest_runtest_teardown(item):
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_teardown(item, nextitem):
+    yield                                    # the fixtures' own teardown first (a module's, after its last test)
+    if nextitem is None or nextitem.module is not item.module:
+        gc.unfreeze()                        # the module's objects too: one full collection per module
     gc.collect()
     petscgarbage.collect(MPI.COMM_WORLD, collected=True)      # the PETSc objects of the test's meshes
+    # what survived is not traversed again until the module ends: a full collection of a suite's heap
+    # costs ~0.2 s, and a test file has dozens of tests
+    gc.freeze()
     MPI.COMM_WORLD.Barrier()
 
 

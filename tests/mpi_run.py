@@ -40,7 +40,8 @@ def run_mpi(script: str, nprocs: int = 2, args: list[str] | None = None, timeout
     cmd = [sys.executable, path] + list(args or [])
     if nprocs > 1:
         cmd = ["mpirun", "-n", str(nprocs)] + cmd
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=timeout)
+    # stdin: not the caller's (mpirun forwards it to rank 0; a pytest-xdist worker's is its channel)
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=timeout, stdin=subprocess.DEVNULL)
     if proc.returncode != 0:
         raise AssertionError(f"{' '.join(cmd)} failed ({proc.returncode}):\n"
                              f"{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")

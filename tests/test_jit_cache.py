@@ -161,3 +161,33 @@ def test_form_signature_does_not_depend_on_how_many_constants_came_before():
         for _ in range(7):                      # the counts of the next pair gain a digit (or more)
             fem.Constant(msh, 0.0)
     assert len(set(signatures)) == 1, signatures
+
+
+def test_a_form_another_process_is_compiling_is_awaited_past_ffcx_s_ten_seconds(tmp_path, monkeypatch):
+    """A process that finds a form half-compiled by another (its ``.c`` file without the ``.c.cached``
+    marker: parallel test workers on an empty cache) waits for it; FFCx's own 10 polls of 1 s would
+    give up while a 3D form compiles.  The other process is simulated: the marker reappears at the
+    15th poll (the polls do not sleep here)."""
+    import ufl
+    from dolfinx import fem, mesh
+
+    from femtools import jitcache
+
+    assert jitcache.install()
+    cache = tmp_path / f"cache{COMM.rank}"
+    msh = mesh.create_unit_square(MPI.COMM_SELF, 1, 1)
+    integrand = (ufl.SpatialCoordinate(msh)[0] + 3.0) * ufl.dx
+    fem.form(integrand, jit_params={"cache_dir": str(cache)})            # compiled: library and marker
+    (marker,) = cache.glob("*.c.cached")
+    hidden = marker.rename(marker.with_suffix(".hidden"))                 # as while another compiles it
+    polls = []
+
+    def poll(seconds):
+        polls.append(seconds)
+        if len(polls) == 15:
+            hidden.rename(marker)                                         # the other process finished
+
+    monkeypatch.setattr(ffcx_jit.time, "sleep", poll)
+    form = fem.form(integrand, jit_params={"cache_dir": str(cache)})
+    assert len(polls) == 15 and jitcache.WAIT_FOR_OTHER_COMPILATION > 15
+    assert fem.assemble_scalar(form) == pytest.approx(3.5, rel=1e-13)

@@ -10,6 +10,10 @@ fixed mesh is the same there as on the test meshes (size 3) to 3 digits
 The run's estimated error (summary.json ``time.estimated_error``,
 :func:`gelcell.post.milestones.global_errors`) is checked against the error measured so,
 and, exactly, on a linear two-mode toy whose discrete solution is known.
+
+The device runs are serial only: the time discretisation does not depend on the partition,
+and the default scheme's series on 2 ranks is compared with the serial one by
+tests/test_transient.py (``test_same_time_series_on_one_and_two_ranks``).
 """
 
 from __future__ import annotations
@@ -79,6 +83,7 @@ def test_the_default_is_bdf2_at_tau_c_over_40():
     assert TimeSettings(transient=True, scheme="be").scheme == "be"
 
 
+@pytest.mark.skip_in_parallel
 @pytest.mark.parametrize("name", ["shear", "normal"])
 def test_default_milestones_within_one_percent_of_the_limit(name):
     """BDF2 at tau_c/40, measured (mesh 6): shear +0.004/-0.21/-0.23 %, normal +0.05/-0.42/-0.48 %
@@ -100,6 +105,7 @@ def test_default_milestones_within_one_percent_of_the_limit(name):
         assert "time discretisation: BDF2" in printed and "estimated error" in printed
 
 
+@pytest.mark.skip_in_parallel
 def test_backward_euler_estimate_and_order():
     """Backward Euler (``scheme = "be"``): first order, ~4 % late at tau_c/40, and the estimate tracks it.
 
