@@ -48,7 +48,7 @@ from coupling.records import (CouplingResult, IterationRecord, RecordedSolve, Re
 from coupling.replay import ReplayResult, replay
 from coupling.schemes import (CouplingScheme, ParallelExplicitScheme, ParallelImplicitScheme,
                               SerialExplicitScheme, SerialImplicitScheme, build_scheme)
-from coupling.serialization import load_npz, save_npz, to_jsonable, write_bytes
+from coupling.serialization import decode_text, encode_text, load_npz, save_npz, to_jsonable, write_bytes
 from coupling.surface_mapping import (SURFACE_MAPPINGS, surface_interpolation_matrix, surface_mapping_matrix,
                                       surface_mass_matrix)
 
@@ -78,5 +78,5 @@ __all__ = [
     "CouplingError", "CouplingDivergedError", "CouplingNotConvergedError",
     "CouplingResult", "IterationRecord", "WindowRecord", "Recording", "RecordedSolve",
     "format_progress", "write_records", "replay", "ReplayResult",
-    "save_npz", "load_npz", "to_jsonable", "write_bytes",
+    "save_npz", "load_npz", "to_jsonable", "write_bytes", "encode_text", "decode_text",
 ]

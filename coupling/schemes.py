@@ -70,7 +70,7 @@ from coupling.parallel import default_comm
 from coupling.participant import Data, Participant, uses_advance
 from coupling.records import (CouplingResult, IterationRecord, RecordedSolve, Recording,
                               WindowRecord, format_progress, write_records)
-from coupling.serialization import load_npz, save_npz
+from coupling.serialization import decode_text, encode_text, load_npz, save_npz
 from coupling.surface_mapping import participant_triangles, triangle_owner
 
 __all__ = ["CouplingScheme", "SerialImplicitScheme", "ParallelImplicitScheme",
@@ -78,7 +78,7 @@ __all__ = ["CouplingScheme", "SerialImplicitScheme", "ParallelImplicitScheme",
 
 _DIVERGENCE_VALUE_FLOOR = 1e-6
 _CHECKPOINT_FORMAT = "coupling-checkpoint"
-_CHECKPOINT_VERSION = 1
+_CHECKPOINT_VERSION = 2
 
 
 class CouplingScheme:
@@ -157,6 +157,7 @@ class CouplingScheme:
         # converged values at the end of the last windows, with their times (extrapolation)
         self.window_ends: list[tuple[float, dict[str, np.ndarray]]] = []
         self.history: list[WindowRecord] = []
+        self._encoded_history: list[tuple[WindowRecord, str]] = []     # (record, its text) for checkpoints
         self.recording: Recording | None = Recording() if self.config.record_data else None
         self.result: CouplingResult | None = None
         self._initialized = False      # initialize() called, finalize() not yet
@@ -972,8 +973,18 @@ class CouplingScheme:
                 "window_ends": [[t, ends] for t, ends in self.window_ends],
                 "acceleration": self.acceleration.state_dict(),
                 # the records too: the resumed run's iteration logs cover the whole run
-                "history": [dataclasses.asdict(rec) for rec in self.history],
+                "history": self._records_text(),
                 "participants": participant_states, "extra": self.comm.gather(extra, root=0)}
+
+    def _records_text(self) -> str:
+        """:attr:`history` as one JSON text (:func:`~coupling.serialization.encode_text`), each record
+        encoded once: a checkpoint every window re-encoding every past record costs the square of the
+        windows (a 129-window run: most of its checkpoints' time)."""
+        cache, n = self._encoded_history, 0
+        while n < min(len(cache), len(self.history)) and cache[n][0] is self.history[n]:
+            n += 1                          # the records still in the history (a restore drops the last)
+        cache[n:] = [(rec, encode_text(dataclasses.asdict(rec))) for rec in self.history[n:]]
+        return "[" + ",".join(text for _, text in cache) + "]"
 
     @staticmethod
     def _write_checkpoint(path: str | os.PathLike, state: dict) -> tuple[str | None, tuple | None]:
@@ -1023,7 +1034,10 @@ class CouplingScheme:
                             for t, v in state.get("window_ends", [])]
         self.time = float(state["time"])
         self.window = int(state["window"])
-        self.history = [WindowRecord.from_dict(rec) for rec in state.get("history", [])]
+        history = state.get("history", [])
+        if isinstance(history, str):         # version 2: one text (version 1: a list)
+            history = decode_text(history)
+        self.history = [WindowRecord.from_dict(rec) for rec in history]
         if include_participants and state["participants"]:
             if int(state["ranks"]) != self.comm.Get_size():
                 raise ValueError(f"{path}: participant states were saved on {state['ranks']} ranks, "

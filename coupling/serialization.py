@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["save_npz", "load_npz", "to_jsonable", "write_bytes"]
+__all__ = ["save_npz", "load_npz", "to_jsonable", "write_bytes", "encode_text", "decode_text"]
 
 _META = "__meta__"
 
@@ -67,6 +67,23 @@ def _decode(obj: Any, arrays: Any) -> Any:
             return {k: _decode(v, arrays) for k, v in obj["__dict__"]}
         raise ValueError(f"corrupt npz metadata entry {obj!r}")
     return obj
+
+
+def encode_text(obj: Any) -> str:
+    """``obj`` (no arrays) as the JSON text :func:`save_npz` would store it; :func:`decode_text` reads it.
+
+    For a part of a structure saved often and changed rarely (a run's window records in every
+    checkpoint): encoded once, it is stored as one string."""
+    arrays: dict[str, np.ndarray] = {}
+    meta = _encode(obj, arrays, "text")
+    if arrays:
+        raise TypeError("encode_text: arrays cannot be encoded as text (use save_npz)")
+    return json.dumps(meta)
+
+
+def decode_text(text: str) -> Any:
+    """The object of an :func:`encode_text` text."""
+    return _decode(json.loads(text), {})
 
 
 def save_npz(path: str | os.PathLike, obj: Any) -> None:

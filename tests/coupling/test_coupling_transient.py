@@ -367,3 +367,31 @@ def test_checkpoint_carries_the_application_state(shared_tmp_path):
         assert a.iterations == b.iterations
     for n in scheme.data:
         np.testing.assert_allclose(again.latest(n), scheme.latest(n), rtol=1e-12)
+
+
+def test_checkpoints_hold_the_whole_history_encoding_each_record_once(shared_tmp_path, monkeypatch):
+    """A checkpoint after every window holds every window's record (read back equal to the records
+    themselves), with each record encoded once over the run, also after a restore drops one (a
+    checkpoint that re-encoded the whole history each window cost the square of the windows)."""
+    import dataclasses
+
+    from coupling import schemes
+    encoded = []
+    original = schemes.encode_text
+    monkeypatch.setattr(schemes, "encode_text", lambda obj: encoded.append(obj["window"]) or original(obj))
+    problem = transient_problem()
+    scheme, _ = build(problem, ACCELERATIONS[0], extrapolation_order=1)
+    path = shared_tmp_path / "every-window.npz"
+    for k in range(5):
+        if k == 3:
+            snap = scheme.snapshot()
+        scheme.advance_window(0.1)
+        scheme.save_checkpoint(path)
+    scheme.restore(snap)                        # window 3 rejected: its record goes, then is made again
+    scheme.advance_window(0.05)
+    scheme.save_checkpoint(path)
+    assert encoded == [0, 1, 2, 3, 4, 3]
+    again, _ = build(problem, ACCELERATIONS[0], extrapolation_order=1)
+    again.load_checkpoint(path)
+    assert [dataclasses.asdict(r) for r in again.history] == [dataclasses.asdict(r) for r in scheme.history]
+    assert [r.dt for r in again.history] == [0.1, 0.1, 0.1, 0.05]
