@@ -393,5 +393,10 @@ def test_checkpoints_hold_the_whole_history_encoding_each_record_once(shared_tmp
     assert encoded == [0, 1, 2, 3, 4, 3]
     again, _ = build(problem, ACCELERATIONS[0], extrapolation_order=1)
     again.load_checkpoint(path)
-    assert [dataclasses.asdict(r) for r in again.history] == [dataclasses.asdict(r) for r in scheme.history]
+
+
+    def without_timing(records):                # solve times are rank 0's in the file, each rank's own here
+        return [{**d, "records": [{**r, "solve_time": None} for r in d["records"]]}
+                for d in map(dataclasses.asdict, records)]
+    assert without_timing(again.history) == without_timing(scheme.history)
     assert [r.dt for r in again.history] == [0.1, 0.1, 0.1, 0.05]
