@@ -196,13 +196,11 @@ class TransientRun:
 
     @property
     def start_steps(self) -> tuple:
-        """The first steps of this run from rest in units of dt (BDF2's graded start), else ()."""
-        return BDF2_START if self._graded_start() else ()
-
-    def _graded_start(self) -> bool:
-        """Fixed-step BDF2 from rest starts with the steps BDF2_START (a periodic run keeps equal steps)."""
+        """The first steps of this run from rest in units of dt: BDF2_START for fixed-step BDF2 (a periodic
+        run keeps equal steps), else ()."""
         settings = self.settings
-        return settings.scheme == "bdf2" and not settings.adaptive and not settings.until_periodic
+        graded = settings.scheme == "bdf2" and not settings.adaptive and not settings.until_periodic
+        return BDF2_START if graded else ()
 
     def _done(self) -> bool:
         st, plan = self.state, self.plan
