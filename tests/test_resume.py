@@ -16,7 +16,8 @@ iteration in some windows, so on several ranks the counts are not compared).
 The interruptions land in different places: early (before window 2),
 inside a coupling iteration (SIGINT), a crash of a participant's solve,
 while a frame is written, while the checkpoint is written, and in the window
-retaken after a rejected adaptive step.  The signal is sent by the process
+retaken after a rejected adaptive step, and in the second cycle of an
+``--until-periodic`` run (whose cycle statistics must come out the same).  The signal is sent by the process
 to itself where the test patches in a hook, so that it lands exactly there.
 """
 
@@ -59,6 +60,16 @@ def adaptive_settings() -> TimeSettings:
                         time_tol=1e-2, output_every=2)
 
 
+def periodic_settings() -> TimeSettings:
+    """Until periodic under a sine of period 2 tau_c, 6 steps per period: 3 cycles, 18 windows."""
+    p = case("shear")
+    return TimeSettings(transient=True, until_periodic=True, inflow=f"sine:1,0.5,{2 * tau(p)!r}",
+                        steps_per_period=6, periodic_tol=1e-2, output_every=2)
+
+
+SETTINGS = {"fixed": lambda: FIXED, "adaptive": adaptive_settings, "periodic": periodic_settings}
+
+
 def read_series(directory) -> dict:
     with h5py.File(os.path.join(directory, "timeseries.h5"), "r") as h5:
         return {c: h5[c][()] for c in COLUMNS}
@@ -83,11 +94,11 @@ def run(settings: TimeSettings, out: str, resume: bool = False) -> dict:
 
 @pytest.fixture(scope="module")
 def uninterrupted(tmp_path_factory):
-    """The uninterrupted fixed-step and adaptive runs: settings name -> (series, summary)."""
+    """The uninterrupted runs of every entry of SETTINGS: its name -> (series, summary, directory)."""
     out = {}
-    for name, settings in (("fixed", FIXED), ("adaptive", adaptive_settings())):
+    for name, settings in SETTINGS.items():
         directory = shared(tmp_path_factory, name)
-        summary = run(settings, directory)
+        summary = run(settings(), directory)
         out[name] = (read_series(directory) if COMM.rank == 0 else None, summary, directory)
     return out
 
@@ -180,13 +191,16 @@ CASES = [
     # checkpoints at t = 0 and after every window: the fifth is that of window 4
     ("sigterm-writing-checkpoint-of-window-4", 3, "fixed", lambda mp: while_checkpointing(mp, 5), Interrupted),
     ("sigterm-after-a-rejected-step", 1, "adaptive", lambda mp: after_rejection(mp, signal.SIGTERM), Interrupted),
+    # the second window of the second cycle (6 windows per cycle)
+    ("sigterm-in-cycle-2-until-periodic", 7, "periodic", lambda mp: on_call(
+        mp, PartitionedBackend, "window", 8, lambda: signal_self(signal.SIGTERM)), Interrupted),
 ]
 
 
 @pytest.mark.parametrize("name,done,kind,hook,error", CASES, ids=[c[0] for c in CASES])
 def test_resumed_run_repeats_the_uninterrupted_one(tmp_path_factory, monkeypatch, uninterrupted, name, done, kind,
                                                    hook, error):
-    settings = FIXED if kind == "fixed" else adaptive_settings()
+    settings = SETTINGS[kind]()
     reference, summary, reference_dir = uninterrupted[kind]
     out = shared(tmp_path_factory, name)
     with monkeypatch.context() as mp:
@@ -199,6 +213,13 @@ def test_resumed_run_repeats_the_uninterrupted_one(tmp_path_factory, monkeypatch
     assert int(load_npz(out + ".partial/checkpoint.npz")["window"]) == done      # it landed where meant
     resumed = run(settings, out, resume=True)
     assert resumed["transient"]["rejected_windows"] == summary["transient"]["rejected_windows"]
+    if kind == "periodic":                      # the cycles, their statistics and the lag: from the rows
+        mine, theirs = resumed["periodic"], summary["periodic"]
+        assert mine["converged"] and mine["cycles"] == theirs["cycles"] == 3
+        if COMM.size == 1:
+            assert mine == theirs
+        else:
+            assert mine["phase_lag"]["time"] == pytest.approx(theirs["phase_lag"]["time"], rel=1e-8)
     if COMM.rank != 0:
         return
     series = read_series(out)
