@@ -1045,7 +1045,8 @@ def _schur_complement(K: "scipy.sparse.csr_matrix", keep: np.ndarray, icntl14: i
         lib.MatDenseRestoreArrayRead(S, ctypes.byref(values))
         lib.MatFactorRestoreSchurComplement(handle, ctypes.byref(S), status)
     finally:
-        for obj in (ksp, M, kept):
+        # the references to the PC and its factor too: either keeps MUMPS's factors alive
+        for obj in (F, pc, ksp, M, kept):
             obj.destroy()
     if not np.isfinite(out).all():
         raise FactorizationError("schur_complement: the condensed matrix has NaN or Inf entries")
@@ -1250,7 +1251,7 @@ def distributed_schur_complement(A: PETSc.Mat, keep: np.ndarray, name: str = "sc
         S[:, j0:j0 + width] = block
         for M in (Y, B, Z):
             M.destroy()
-    for obj in (solver.ksp, D, A_k, is_rows, is_cols):
+    for obj in (F, solver.ksp, D, A_k, is_rows, is_cols):      # F: its reference keeps the factors alive
         obj.destroy()
     _record("schur", S.shape, S.size)
     return S
