@@ -15,10 +15,11 @@ iteration in some windows, so on several ranks the counts are not compared).
 
 The interruptions land in different places: early (before window 2),
 inside a coupling iteration (SIGINT), a crash of a participant's solve,
-while a frame is written, while the checkpoint is written, and in the window
+while a frame is written, while the checkpoint is written, in the window
 retaken after a rejected adaptive step, and in the second cycle of an
-``--until-periodic`` run (whose cycle statistics must come out the same).  The signal is sent by the process
-to itself where the test patches in a hook, so that it lands exactly there.
+``--until-periodic`` run (whose cycle statistics must come out the same).  The
+signal is sent by the process to itself where the test patches in a hook, so
+that it lands exactly there.
 """
 
 from __future__ import annotations
