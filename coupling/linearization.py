@@ -179,25 +179,34 @@ class LinearizedPrior:
     participants have been set up for the solve, and kept: it belongs to one
     operator, named by :func:`operator_key` (a steady run, or time windows of
     one step size and scheme).  When the key changes, the factorisation of the
-    new key is taken from the last ``kept`` ones or computed.  Serial
-    schemes factorise the shorter ``I - Z C`` when the inner vector ``z`` is
-    shorter than ``x`` (module docstring).
+    new key is taken from the last ``kept`` ones, else from ``store``, else
+    computed.  Serial schemes factorise the shorter ``I - Z C`` when the inner
+    vector ``z`` is shorter than ``x`` (module docstring).
+
+    ``store``: where factorisations outlive the run (e.g. a disk cache), an
+    object with ``load(key) -> state | None`` and ``save(key, state)``, the
+    states those of :meth:`state`; both are called on every rank, and ``load``
+    must return the same on each.  A state that is not this operator's can
+    only cost iterations: the coupling stops on the real map's residual.
 
     Attributes:
-        setup_time: seconds spent on the derivatives and the factorisations.
+        setup_time: seconds spent on the derivatives, the factorisations and the loads.
         factorizations: how many factorisations were computed.
+        loaded: how many were taken from ``store``.
     """
 
     accepts_matrices = True      # inverse_jacobian takes the secant columns in one call
 
-    def __init__(self, scheme: Any, kept: int = 4):
+    def __init__(self, scheme: Any, kept: int = 4, store: Any = None):
         self._scheme = scheme
+        self.store = store
         self._factors: dict[str, Any] | None = None
         self._key: tuple | None = None
         self._kept: OrderedDict[tuple, dict[str, Any]] = OrderedDict()
         self.kept = int(kept)
         self.setup_time = 0.0
         self.factorizations = 0
+        self.loaded = 0
 
     @property
     def jacobian(self) -> np.ndarray | None:
@@ -240,10 +249,28 @@ class LinearizedPrior:
             self._factors = self._kept.pop(key, None)
             self._key = key
             if self._factors is None:
-                self._factorize()
+                self._load_or_factorize(key)
             while len(self._kept) >= max(self.kept, 1):
                 self._kept.popitem(last=False)             # the least recently used
         return self._factors
+
+    def _load_or_factorize(self, key: tuple) -> None:
+        """The factorisation of ``key`` from ``store``, else computed (and given to ``store``)."""
+        if self.store is not None:
+            t0 = time.perf_counter()
+            state = self.store.load(key)
+            if state is not None and self._rows(state) == self._scheme.layout.size:
+                self._factors = dict(state)
+                self.loaded += 1
+                self.setup_time += time.perf_counter() - t0
+                return
+        self._factorize()
+        if self.store is not None:
+            self.store.save(key, self.state())
+
+    @staticmethod
+    def _rows(state: Mapping[str, Any]) -> int:
+        return state["A"].shape[0] if "A" in state else state["C"].shape[0]
 
     @staticmethod
     def _lu(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -285,7 +312,7 @@ class LinearizedPrior:
         if state is None:
             return
         n = self._scheme.layout.size
-        rows = state["A"].shape[0] if "A" in state else state["C"].shape[0]
+        rows = self._rows(state)
         if rows != n:
             raise ValueError(f"linearized prior: the state is for {rows} unknowns, this scheme has {n}")
         self._factors = dict(state)

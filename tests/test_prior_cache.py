@@ -24,6 +24,8 @@ from gelcell.coupled import priorcache
 from gelcell.coupled.defaults import coupling_config
 from gelcell.coupled.device import Device
 from gelcell.case import CaseParameters
+from test_transient import relative_difference
+from transient_cases import run, tau
 
 COMM = MPI.COMM_WORLD
 MESH = 3.0
@@ -86,6 +88,44 @@ def test_one_entry_serves_every_ca_and_no_other_problem(cache):
         keys[name] = priorcache.cache_key(d, d.scheme)
     assert keys["ca"] == keys["other ca"]
     assert len({keys["ca"], keys["cell x10"], keys["mesh"]}) == 3
+
+
+def test_a_time_dependent_run_keeps_one_entry_per_operator(cache):
+    """BDF2 from rest (dt/4 BE, dt/2 and dt with omega = 2, dt: four operators, and a last step cut short):
+    each operator computed once and stored; the repeated run loads every one and takes the same
+    windows, iteration for iteration (serial: bitwise; 2 ranks: MUMPS's round-off, as above).
+    Another Ca is another entry (its time unit is not part of the steady argument)."""
+    p = base()
+    kw = dict(dt=tau(p) / 20, t_end=4.5 * tau(p) / 20, scheme="bdf2")
+    first = run(p, **kw)
+    prior = first["run"].backend.scheme.linearized_prior
+    assert (prior.factorizations, prior.loaded) == (5, 0)
+    assert len(entries(cache)) == 5
+    second = run(p, **kw)
+    prior = second["run"].backend.scheme.linearized_prior
+    assert (prior.factorizations, prior.loaded) == (0, 5)
+    np.testing.assert_array_equal(second["series"]["iterations"], first["series"]["iterations"])
+    tolerance = 0.0 if COMM.size == 1 else 1e-12
+    assert relative_difference(second["series"], first["series"]) <= tolerance
+    other = run(p.with_ca(3.0 * p.physics.ca), dt=tau(p) / 20, t_end=tau(p) / 20, scheme="be")
+    assert other["run"].backend.scheme.linearized_prior.loaded == 0
+
+
+def test_a_time_dependent_run_writes_at_most_its_budget(cache, monkeypatch):
+    """An adaptive run's tens of operators must not evict the cache: one run writes at most
+    MAX_RUN_BYTES (none with a budget of 0; of two operators one with a budget of 1.5 entries)."""
+    p = base()
+    kw = dict(dt=tau(p) / 20, t_end=1.5 * tau(p) / 20, scheme="be")      # dt, then dt/2 to t_end
+    monkeypatch.setattr(priorcache, "MAX_RUN_BYTES", 0)
+    prior = run(p, **kw)["run"].backend.scheme.linearized_prior
+    assert prior.factorizations == 2 and entries(cache) == []
+    entry = sum(a.nbytes for a in priorcache._to_npz(prior.state()).values())
+    monkeypatch.setattr(priorcache, "MAX_RUN_BYTES", int(1.5 * entry))
+    prior = run(p, **kw)["run"].backend.scheme.linearized_prior
+    assert prior.factorizations == 2 and len(entries(cache)) == 1
+    assert prior.store.written == (entry if COMM.rank == 0 else 0)
+    prior = run(p, **kw)["run"].backend.scheme.linearized_prior
+    assert (prior.factorizations, prior.loaded) == (1, 1)
 
 
 def test_a_corrupt_entry_is_a_miss_and_is_replaced(cache):

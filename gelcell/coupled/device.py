@@ -324,11 +324,15 @@ class Device:
         (:meth:`_default_prior`, :data:`TRANSIENT_PRIOR`): the participants'
         interface Jacobians of one step from rest, so one factorisation per
         step size and scheme (the gel's ``jacobian_key``), kept for the last
-        few (``coupling.LinearizedPrior``); and the solve paths it needs.
+        few (``coupling.LinearizedPrior``) and on disk
+        (:class:`gelcell.coupled.priorcache.WindowPriors`); and the solve paths it needs.
         """
         config = dict(config)
         chosen = self._build_scheme(config)
-        self.prior_source = None if self.linearized_prior is None else "computed per dt"
+        prior = self.linearized_prior
+        self.prior_source = None if prior is None else "computed per dt"
+        if prior is not None and priorcache.enabled():
+            prior.store = priorcache.WindowPriors(self, self.scheme, self.comm)
         return chosen, self.scheme
 
     def coarse_surrogate(self, coarse: "Device") -> typing.Callable[[cp.CouplingScheme], cp.CoarseSurrogate]:

@@ -18,8 +18,10 @@ iterations: the residual that stops the coupling is the real map's.
   :data:`PRIOR_FORMAT` (the version of what the code computes: bump it with a
   change of the interface Jacobians or their composition).  Editing a
   docstring or a comment keeps the entries.
-* What: steady runs, of the built-in devices and of geometry files; a
-  time-dependent run's prior depends on its step.
+* What: steady runs, of the built-in devices and of geometry files; and a
+  time-dependent run's priors, one entry per operator (:class:`WindowPriors`,
+  keyed also by the participants' ``jacobian_key``, the gel's c0 = a0/dt, and
+  by Ca: the steady argument for leaving it out says nothing of the time unit).
 * Where: ``$GELCELL_PRIOR_CACHE_DIR``, else ``$XDG_CACHE_HOME/gelcell/priors``,
   else ``~/.cache/gelcell/priors``.  ``GELCELL_PRIOR_CACHE=0`` turns it off.
 * Size: an entry is the dense factorisation, uncompressed (tens of MB at the
@@ -43,8 +45,8 @@ from gelcell import diskcache
 from gelcell.coupled.defaults import reuse_key
 from gelcell.geometry import meshcache
 
-__all__ = ["CACHE_FORMAT", "PRIOR_FORMAT", "MAX_BYTES", "MAX_ENTRY_BYTES", "cache_dir", "cache_key", "enabled",
-           "load", "store"]
+__all__ = ["CACHE_FORMAT", "PRIOR_FORMAT", "MAX_BYTES", "MAX_ENTRY_BYTES", "MAX_RUN_BYTES", "WindowPriors",
+           "cache_dir", "cache_key", "enabled", "load", "store"]
 
 #: version of the entry layout; bump it when that changes
 CACHE_FORMAT = 1
@@ -52,6 +54,8 @@ CACHE_FORMAT = 1
 MAX_ENTRY_BYTES = 256 * 2**20
 #: the most recently used entries kept, together at most this size
 MAX_BYTES = 2 * 2**30
+#: what one time-dependent run writes at most (:class:`WindowPriors`)
+MAX_RUN_BYTES = MAX_BYTES // 2
 #: version of the prior the code computes (the solvers' interface Jacobians, the device's data and
 #: their composition): bump it when a change of that code changes a prior
 PRIOR_FORMAT = 1
@@ -85,8 +89,9 @@ def _file_hash(params: Any) -> str | None:
         return hashlib.sha256(f.read()).hexdigest()
 
 
-def cache_key(device: Any, scheme: Any) -> str:
-    """sha256 (hex) of a canonical JSON of everything the linearized prior of ``scheme`` depends on."""
+def cache_key(device: Any, scheme: Any, operator: Any = None) -> str:
+    """sha256 (hex) of a canonical JSON of everything the linearized prior of ``scheme`` depends on;
+    ``operator``: a time-dependent run's ``coupling.operator_key`` (then Ca is part of the key too)."""
     params = device.params
     data = {"format": CACHE_FORMAT, "prior_format": PRIOR_FORMAT, "mesh": meshcache.cache_key(params),
             "geometry_file": _file_hash(params),
@@ -97,6 +102,8 @@ def cache_key(device: Any, scheme: Any) -> str:
                        "data": [[n, list(scheme.values[n].shape), scheme.data[n].mapping]
                                 for n in scheme.layout.names]},
             "points": _points_hash(scheme)}
+    if operator is not None:
+        data["window"] = {"operator": repr(tuple(operator)), "ca": repr(params.physics.ca)}
     return hashlib.sha256(json.dumps(data, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
@@ -104,8 +111,8 @@ def _cached(device: Any) -> bool:
     return enabled() and not device.transient
 
 
-def _path(device: Any, scheme: Any) -> str:
-    return os.path.join(cache_dir(), f"{device.params.case}-{cache_key(device, scheme)}.npz")
+def _path(device: Any, scheme: Any, operator: Any = None) -> str:
+    return os.path.join(cache_dir(), f"{device.params.case}-{cache_key(device, scheme, operator)}.npz")
 
 
 def _to_npz(state: Mapping[str, Any]) -> dict:
@@ -135,19 +142,48 @@ def _from_npz(data: Any) -> dict:
 def load(device: Any, scheme: Any, comm: Any) -> dict | None:
     """The cached prior state of ``scheme`` (:meth:`coupling.LinearizedPrior.load_state`) or None, on
     every rank (collective)."""
-    if not _cached(device):
-        return None
-    state = diskcache.read_npz(_path(device, scheme), _from_npz) if comm.rank == 0 else None
-    return comm.bcast(state, root=0) if comm.size > 1 else state
+    return _read(_path(device, scheme), comm) if _cached(device) else None
 
 
 def store(device: Any, scheme: Any, state: Mapping[str, Any], comm: Any) -> None:
     """Write the prior state of ``scheme`` (rank 0; skipped if too large or if writing fails)."""
-    if not _cached(device) or comm.rank != 0:
-        return
+    if _cached(device):
+        _write(_path(device, scheme), state, comm)
+
+
+class WindowPriors:
+    """The disk cache of a time-dependent run's priors, one entry per operator: the ``store`` of its
+    :class:`coupling.LinearizedPrior` (``load`` collective, ``save`` on rank 0).
+
+    One run writes at most :data:`MAX_RUN_BYTES`: an adaptive run's tens of operators (70 MB
+    each at the default mesh) would otherwise evict every other entry, its own first ones too."""
+
+    def __init__(self, device: Any, scheme: Any, comm: Any):
+        self._device, self._scheme, self._comm = device, scheme, comm
+        self.written = 0
+
+    def load(self, operator: Any) -> dict | None:
+        return _read(_path(self._device, self._scheme, operator), self._comm)
+
+    def save(self, operator: Any, state: Mapping[str, Any]) -> None:
+        self.written += _write(_path(self._device, self._scheme, operator), state, self._comm,
+                               MAX_RUN_BYTES - self.written)
+
+
+def _read(path: str, comm: Any) -> dict | None:
+    state = diskcache.read_npz(path, _from_npz) if comm.rank == 0 else None
+    return comm.bcast(state, root=0) if comm.size > 1 else state
+
+
+def _write(path: str, state: Mapping[str, Any], comm: Any, budget: int = MAX_ENTRY_BYTES) -> int:
+    """Write one entry on rank 0 if it fits ``budget`` and :data:`MAX_ENTRY_BYTES`; its size, or 0."""
+    if comm.rank != 0:
+        return 0
     arrays = _to_npz(state)
-    if sum(a.nbytes for a in arrays.values()) > MAX_ENTRY_BYTES:
-        return
-    path = _path(device, scheme)
-    if diskcache.write_npz(path, arrays, compressed=False):     # dense floats do not compress
-        diskcache.prune(os.path.dirname(path), _ENTRY_NAME, max_entries=1000, max_bytes=MAX_BYTES)
+    size = sum(a.nbytes for a in arrays.values())
+    if size > min(budget, MAX_ENTRY_BYTES):
+        return 0
+    if not diskcache.write_npz(path, arrays, compressed=False):     # dense floats do not compress
+        return 0
+    diskcache.prune(os.path.dirname(path), _ENTRY_NAME, max_entries=1000, max_bytes=MAX_BYTES)
+    return size

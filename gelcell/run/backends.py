@@ -95,7 +95,7 @@ class PartitionedBackend:
         prior = self.scheme.linearized_prior
         if prior is None:
             return "none"
-        return f"linearized per dt ({prior.factorizations} computed)"
+        return f"linearized per dt ({prior.factorizations} computed, {prior.loaded} from the disk cache)"
 
 
 class MonolithicBackend:
