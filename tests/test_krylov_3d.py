@@ -157,3 +157,30 @@ def test_finite_strain_sphere_on_the_iterative_path(monkeypatch, radial_solution
           f"iterative - direct {diff:.1e}")
     assert diff < 1e-8
     assert bounded([c[1] for c in counts]), counts
+
+
+# --------------------------------------------------------------------------- p-multigrid's prolongation
+def test_p1_prolongation_is_the_interpolation_into_p2_in_the_block_order():
+    """P1 is in P2: P x1 must be the P2 interpolant of the P1 function x1 exactly (to round-off), in the
+    order of the velocity block's index set (nodes of ``_node_ordered``, components consecutive), on
+    every rank; the preconditioner would only converge more slowly with a wrong P, so it is checked here."""
+    from dolfinx import fem
+    from femtools.krylov import _node_ordered, p1_prolongation
+    msh, _ = fluid3d_cases.box_mesh((0.5, 1.0, 0.5), (2, 3, 2))
+    import ufl
+    W = fem.FunctionSpace(msh, ufl.MixedElement([ufl.VectorElement("Lagrange", msh.ufl_cell(), 2),
+                                                 ufl.FiniteElement("Lagrange", msh.ufl_cell(), 1)]))
+    V, V_to_W = W.sub(0).collapse()
+    _, nodes = _node_ordered(W, V, V_to_W)
+    P = p1_prolongation(V, nodes)
+    V1 = fem.VectorFunctionSpace(msh, ("Lagrange", 1))
+    f1 = fem.Function(V1)
+    f1.interpolate(lambda x: np.vstack([1 + x[0] * x[1], np.sin(3 * x[2]), x[0] - 2 * x[2]]))
+    f2 = fem.Function(V)
+    f2.interpolate(f1)
+    y = P.createVecLeft()
+    P.mult(f1.vector, y)
+    n = V.dofmap.index_map.size_local
+    expected = f2.x.array[:3 * n].reshape(n, 3)[nodes].ravel()
+    assert y.getLocalSize() == expected.size
+    assert np.max(np.abs(y.array - expected)) < 1e-13 * np.max(np.abs(expected))
