@@ -348,7 +348,7 @@ def elasticity_solver(V: fem.FunctionSpace, name: str, options: dict | None = No
                       ksp_type: str = "cg") -> KrylovSolver:
     """CG (or ``ksp_type``) with GAMG and the rigid-body near-null space of the vector space ``V``
     (a P2 space in 3D: :data:`P2_MULTIGRID_3D`)."""
-    if V.mesh.geometry.dim == 3 and V.ufl_element().degree() == 2:
+    if _p_multigrid(V):
         nodes = np.arange(V.dofmap.index_map.size_local)
         return KrylovSolver(V.mesh.comm, name, ksp_type, _merged(P2_MULTIGRID_3D, options),
                             near_null_space=rigid_body_modes(V), interpolations={None: p1_prolongation(V, nodes)})
@@ -375,6 +375,17 @@ P2_MULTIGRID_3D = {"pc_type": "mg", "pc_mg_levels": 2, "pc_mg_galerkin": "both",
                       "mg_levels_ksp_chebyshev_esteig": "0,0.1,0,1.5", "mg_levels_pc_type": "jacobi",
                       "mg_coarse_ksp_type": "preonly", "mg_coarse_pc_type": "hypre",
                       "mg_coarse_pc_hypre_type": "boomeramg"}
+
+
+#: the dimensions whose P2 vector blocks take :data:`P2_MULTIGRID_3D`. Not 2D: there GAMG on P2 is the
+#: better (the gel's GMRES 30 -> 78 iterations per solve with p-multigrid on the shear device's default
+#: mesh; the Stokes channel of tests/test_krylov.py, h = 0.2, 0.1, 0.05: MINRES 64, 66, 68 with GAMG,
+#: 64, 71, 99 with it)
+P2_MULTIGRID_DIMENSIONS = (3,)
+
+
+def _p_multigrid(V: fem.FunctionSpace) -> bool:
+    return V.mesh.geometry.dim in P2_MULTIGRID_DIMENSIONS and V.ufl_element().degree() == 2
 
 
 def p1_prolongation(V: fem.FunctionSpace, nodes: np.ndarray) -> PETSc.Mat:
@@ -413,7 +424,7 @@ def stokes_solver(W: fem.FunctionSpace, name: str, preconditioner_form, bcs, opt
     velocity_set, nodes = _node_ordered(W, V, V_to_W)
     pressure_set = owned_index_set(W, W.sub(pressure).collapse()[1])
     fields = [("u", velocity_set, rigid_body_modes(V, nodes)), ("p", pressure_set, None)]
-    p_multigrid = W.mesh.geometry.dim == 3 and V.ufl_element().degree() == 2
+    p_multigrid = _p_multigrid(V)
     velocity_options = P2_MULTIGRID_3D if p_multigrid else elasticity_options(W.mesh.geometry.dim)
     defaults = {**{k: v for k, v in STOKES_OPTIONS.items() if not k.startswith("fieldsplit_u_")},
                 "fieldsplit_u_ksp_type": "preonly", **_prefixed("fieldsplit_u_", velocity_options)}
@@ -535,7 +546,7 @@ def gel_solver(W: fem.FunctionSpace, name: str, preconditioner_form, mass_form, 
         V, V_to_W = W.sub(k).collapse()
         index_set, nodes = _node_ordered(W, V, V_to_W)
         fields.append((label, index_set, rigid_body_modes(V, nodes)))
-        if W.mesh.geometry.dim == 3 and V.ufl_element().degree() == 2 and label in GEL_P_MULTIGRID:
+        if _p_multigrid(V) and label in GEL_P_MULTIGRID:
             interpolations[k] = p1_prolongation(V, nodes)
             defaults = {**{o: v for o, v in defaults.items() if not o.startswith(f"fieldsplit_{label}_")},
                         f"fieldsplit_{label}_ksp_type": "preonly", **_prefixed(f"fieldsplit_{label}_", P2_MULTIGRID_3D)}
