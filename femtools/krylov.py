@@ -34,6 +34,7 @@ import time
 import typing
 
 import numpy as np
+import scipy.sparse
 
 from mpi4py import MPI
 from petsc4py import PETSc
@@ -395,17 +396,20 @@ def p1_prolongation(V: fem.FunctionSpace, nodes: np.ndarray) -> PETSc.Mat:
     V1 = fem.VectorFunctionSpace(msh, ("Lagrange", 1))
     M = cpp_petsc.interpolation_matrix(V1._cpp_object, V._cpp_object)
     M.assemble()
-    indptr, indices, values = M.getValuesCSR()
-    rows = (np.asarray(nodes, dtype=np.int64)[:, None] * bs + np.arange(bs)).ravel()
-    starts, ends = indptr[rows], indptr[rows + 1]
-    order = np.concatenate([np.arange(a, b) for a, b in zip(starts, ends)] + [np.empty(0, np.int64)])
-    counts = (ends - starts).astype(np.int64)
-    P = PETSc.Mat().createAIJ(size=(M.getSizes()[0], M.getSizes()[1]), comm=msh.comm,
-                              csr=(np.concatenate([[0], np.cumsum(counts)]).astype(PETSc.IntType),
-                                   indices[order].astype(PETSc.IntType), values[order]))
+    indptr, indices, values = M.getValuesCSR()          # owned rows, global columns
+    local = scipy.sparse.csr_matrix((values, indices, indptr), shape=(indptr.size - 1, M.getSize()[1]))
+    rows = local[(np.asarray(nodes, dtype=np.int64)[:, None] * bs + np.arange(bs)).ravel()]
+    P = PETSc.Mat().createAIJ(size=M.getSizes(), comm=msh.comm,
+                              csr=(rows.indptr.astype(PETSc.IntType), rows.indices.astype(PETSc.IntType), rows.data))
     P.assemble()
     M.destroy()
     return P
+
+
+def _with_p_multigrid(defaults: dict, prefix: str) -> dict:
+    """``defaults`` with the block of options ``prefix`` replaced by :data:`P2_MULTIGRID_3D` (as one solve)."""
+    kept = {k: v for k, v in defaults.items() if not k.startswith(prefix)}
+    return {**kept, prefix + "ksp_type": "preonly", **_prefixed(prefix, P2_MULTIGRID_3D)}
 
 
 def stokes_solver(W: fem.FunctionSpace, name: str, preconditioner_form, bcs, options: dict | None = None,
@@ -424,11 +428,10 @@ def stokes_solver(W: fem.FunctionSpace, name: str, preconditioner_form, bcs, opt
     velocity_set, nodes = _node_ordered(W, V, V_to_W)
     pressure_set = owned_index_set(W, W.sub(pressure).collapse()[1])
     fields = [("u", velocity_set, rigid_body_modes(V, nodes)), ("p", pressure_set, None)]
-    p_multigrid = _p_multigrid(V)
-    velocity_options = P2_MULTIGRID_3D if p_multigrid else elasticity_options(W.mesh.geometry.dim)
-    defaults = {**{k: v for k, v in STOKES_OPTIONS.items() if not k.startswith("fieldsplit_u_")},
-                "fieldsplit_u_ksp_type": "preonly", **_prefixed("fieldsplit_u_", velocity_options)}
-    interpolations = {0: p1_prolongation(V, nodes)} if p_multigrid else None
+    defaults = {**STOKES_OPTIONS, **_prefixed("fieldsplit_u_", elasticity_options(W.mesh.geometry.dim))}
+    interpolations = None
+    if _p_multigrid(V):
+        defaults, interpolations = _with_p_multigrid(defaults, "fieldsplit_u_"), {0: p1_prolongation(V, nodes)}
     if not pinned:
         return KrylovSolver(W.mesh.comm, name, "minres", _merged(defaults, options),
                             preconditioner_form=preconditioner_form, bcs=bcs, fields=fields,
@@ -546,18 +549,13 @@ def gel_solver(W: fem.FunctionSpace, name: str, preconditioner_form, mass_form, 
         V, V_to_W = W.sub(k).collapse()
         index_set, nodes = _node_ordered(W, V, V_to_W)
         fields.append((label, index_set, rigid_body_modes(V, nodes)))
-        if _p_multigrid(V) and label in GEL_P_MULTIGRID:
-            interpolations[k] = p1_prolongation(V, nodes)
-            defaults = {**{o: v for o, v in defaults.items() if not o.startswith(f"fieldsplit_{label}_")},
-                        f"fieldsplit_{label}_ksp_type": "preonly", **_prefixed(f"fieldsplit_{label}_", P2_MULTIGRID_3D)}
+        if _p_multigrid(V):
+            defaults, interpolations[k] = _with_p_multigrid(defaults, f"fieldsplit_{label}_"), p1_prolongation(V, nodes)
     fields.append(("p", owned_index_set(W, W.sub(2).collapse()[1]), None))
     return _GelKrylov(W.mesh.comm, name, "gmres", _merged(defaults, options),
                       preconditioner_form=preconditioner_form, bcs=bcs, fields=fields,
                       preconditioned_norm=True, mass_form=mass_form, interpolations=interpolations)
 
-
-#: the gel's blocks that take p-multigrid in 3D
-GEL_P_MULTIGRID = ("w", "u")
 
 
 class PressureSchur:
