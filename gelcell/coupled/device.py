@@ -330,7 +330,7 @@ class Device:
         config = dict(config)
         chosen = self._build_scheme(config)
         prior = self.linearized_prior
-        self.prior_source = None if prior is None else "computed per dt"
+        self.prior_source = None if prior is None else "per dt (computed or from the disk cache)"
         if prior is not None and priorcache.enabled():
             prior.store = priorcache.WindowPriors(self, self.scheme, self.comm)
         return chosen, self.scheme

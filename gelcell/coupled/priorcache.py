@@ -92,8 +92,18 @@ def _file_hash(params: Any) -> str | None:
 def cache_key(device: Any, scheme: Any, operator: Any = None) -> str:
     """sha256 (hex) of a canonical JSON of everything the linearized prior of ``scheme`` depends on;
     ``operator``: a time-dependent run's ``coupling.operator_key`` (then Ca is part of the key too)."""
+    return _hash(_key_data(device, scheme), device, operator)
+
+
+def _hash(data: dict, device: Any, operator: Any) -> str:
+    if operator is not None:
+        data = {**data, "window": {"operator": repr(tuple(operator)), "ca": repr(device.params.physics.ca)}}
+    return hashlib.sha256(json.dumps(data, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
+def _key_data(device: Any, scheme: Any) -> dict:
     params = device.params
-    data = {"format": CACHE_FORMAT, "prior_format": PRIOR_FORMAT, "mesh": meshcache.cache_key(params),
+    return {"format": CACHE_FORMAT, "prior_format": PRIOR_FORMAT, "mesh": meshcache.cache_key(params),
             "geometry_file": _file_hash(params),
             "problem": reuse_key(params),
             "interfaces": {"alpha_n": repr(device.alpha_n), "alpha_t": repr(device.alpha_t),
@@ -102,17 +112,18 @@ def cache_key(device: Any, scheme: Any, operator: Any = None) -> str:
                        "data": [[n, list(scheme.values[n].shape), scheme.data[n].mapping]
                                 for n in scheme.layout.names]},
             "points": _points_hash(scheme)}
-    if operator is not None:
-        data["window"] = {"operator": repr(tuple(operator)), "ca": repr(params.physics.ca)}
-    return hashlib.sha256(json.dumps(data, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
 def _cached(device: Any) -> bool:
     return enabled() and not device.transient
 
 
-def _path(device: Any, scheme: Any, operator: Any = None) -> str:
-    return os.path.join(cache_dir(), f"{device.params.case}-{cache_key(device, scheme, operator)}.npz")
+def _path(device: Any, scheme: Any) -> str:
+    return _entry_path(device, cache_key(device, scheme))
+
+
+def _entry_path(device: Any, key: str) -> str:
+    return os.path.join(cache_dir(), f"{device.params.case}-{key}.npz")
 
 
 def _to_npz(state: Mapping[str, Any]) -> dict:
@@ -159,15 +170,18 @@ class WindowPriors:
     each at the default mesh) would otherwise evict every other entry, its own first ones too."""
 
     def __init__(self, device: Any, scheme: Any, comm: Any):
-        self._device, self._scheme, self._comm = device, scheme, comm
+        self._device, self._comm = device, comm
+        self._data = _key_data(device, scheme)          # the run's part of every key, hashed once
         self.written = 0
 
+    def _path(self, operator: Any) -> str:
+        return _entry_path(self._device, _hash(self._data, self._device, operator))
+
     def load(self, operator: Any) -> dict | None:
-        return _read(_path(self._device, self._scheme, operator), self._comm)
+        return _read(self._path(operator), self._comm)
 
     def save(self, operator: Any, state: Mapping[str, Any]) -> None:
-        self.written += _write(_path(self._device, self._scheme, operator), state, self._comm,
-                               MAX_RUN_BYTES - self.written)
+        self.written += _write(self._path(operator), state, self._comm, MAX_RUN_BYTES - self.written)
 
 
 def _read(path: str, comm: Any) -> dict | None:
