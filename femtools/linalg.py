@@ -67,7 +67,13 @@ class SolverStats(dict):
     def __init__(self):
         super().__init__(factorizations=0, solves=0, factor_time=0.0, solve_time=0.0,
                          assemble_time=0.0, newton_iterations=0, rejected_steps=0,
-                         state_assemblies=0, linear_steps=0, linear_fallbacks=0)
+                         state_assemblies=0, linear_steps=0, linear_fallbacks=0, krylov_iterations=0)
+
+    def count_solve(self, solver) -> None:
+        """One more linear solve by ``solver``: its Krylov iterations (none for a factorisation)."""
+        self["solves"] += 1
+        if getattr(solver, "kind", None) == "krylov":
+            self["krylov_iterations"] += solver.iterations[-1]
 
 
 class FactorizationError(RuntimeError):
@@ -469,7 +475,7 @@ class LinearSolver:
         t0 = time.perf_counter()
         self.solver.solve(self.b, self.u.vector)
         self.stats["solve_time"] += time.perf_counter() - t0
-        self.stats["solves"] += 1
+        self.stats.count_solve(self.solver)
         _nan_check(self.u.vector, self.name)
         self.u.x.scatter_forward()
         return self.u
@@ -947,7 +953,7 @@ class NewtonSolver:
         t0 = time.perf_counter()
         self._linear_solve()
         self.stats["solve_time"] += time.perf_counter() - t0
-        self.stats["solves"] += 1
+        self.stats.count_solve(self._linear)
         self.u.vector.axpy(-1.0, self.du)
         self.u.x.scatter_forward()
         du, un = self.du.norm(), self.u.vector.norm()

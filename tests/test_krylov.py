@@ -77,6 +77,9 @@ def test_cell_iterative_equals_direct():
         iterative.solve()
         assert iterative._newton.solver.ksp.getType() == "cg"        # the Jacobian is symmetric
         assert relative_difference(iterative.u, direct.u) < 1e-8, load
+        # the counters the summary reports: every Newton step's Krylov iterations, none for MUMPS
+        assert iterative.stats["krylov_iterations"] == sum(iterative._newton.solver.iterations) > 0
+        assert direct.stats["krylov_iterations"] == 0 and direct.stats["solves"] > 0
 
 
 def test_cell_iterations_bounded_under_refinement_and_moduli():

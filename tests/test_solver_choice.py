@@ -67,9 +67,13 @@ def test_iterative_equals_direct_on_the_steady_device(case):
     direct = solve_partitioned(p, verbose=False, checks=False, solver="direct")
     iterative = solve_partitioned(p, verbose=False, checks=False, solver="iterative")
     assert direct.summary["coupling"]["converged"] and iterative.summary["coupling"]["converged"]
-    assert iterative.summary["solver"] == {"kind": "iterative", "fields": dict.fromkeys(solverchoice.FIELDS,
-                                                                                        "iterative")}
-    assert direct.summary["solver"]["fields"] == dict.fromkeys(solverchoice.FIELDS, "direct")
+    solver = iterative.summary["solver"]
+    assert (solver["kind"], solver["fields"]) == ("iterative", dict.fromkeys(solverchoice.FIELDS, "iterative"))
+    # every field's Krylov solves are counted, each converged in at least one iteration
+    assert set(solver["krylov"]) == {"fluid", "mesh_motion", "gel", "cell"}
+    for field, krylov in solver["krylov"].items():
+        assert krylov["solves"] > 0 and krylov["iterations"] >= krylov["solves"], field
+    assert direct.summary["solver"] == {"kind": "direct", "fields": dict.fromkeys(solverchoice.FIELDS, "direct")}
     _assert_quantities_agree(iterative.summary, direct.summary, case)
 
 

@@ -138,6 +138,27 @@ class Device:
         fields = [f for f in solverchoice.FIELDS if f != "cell" or self.params.with_cell]
         return {f: solverchoice.choose(solver, self.meshes.region(f)[0], f) for f in fields}
 
+    def krylov_iterations(self) -> dict[str, dict]:
+        """Per field solved iteratively: its linear ``solves``, their Krylov ``iterations`` and the ``mean``."""
+        def counts(stats) -> dict:
+            solves, its = int(stats["solves"]), int(stats["krylov_iterations"])
+            return {"solves": solves, "iterations": its, "mean": its / solves if solves else 0.0}
+
+        def of_fluid() -> dict:
+            stats = self.fluid.stats
+            out = {"fluid": counts(stats["stokes"])}
+            if "mesh_motion" in stats:
+                out["mesh_motion"] = counts(stats["mesh_motion"])
+            return out
+
+        sources = {"fluid": of_fluid, "gel": lambda: {"gel": counts(self.gel.newton.stats)},
+                   "cell": lambda: {"cell": counts(self.cell.stats)}}
+        out = {}
+        for field, kind in self.solver_kinds.items():
+            if kind == "iterative" and field in sources:
+                out.update(self._from_field(field, sources[field]))
+        return out
+
     def _fluid_solver(self, options: dict | None) -> StokesSolver:
         """Stokes on the fluid mesh, Robin conditions on each fluid-gel interface."""
         b, params = self.boundaries, self.params

@@ -119,6 +119,9 @@ def format_summary(summary: dict) -> str:
     if solver:
         lines.append(f"linear solvers: {solver['kind']} -> "
                      + ", ".join(f"{field} {kind}" for field, kind in solver["fields"].items()))
+        if solver.get("krylov"):
+            lines.append("Krylov iterations per solve: " + ", ".join(
+                f"{field} {k['mean']:.1f} ({k['solves']} solves)" for field, k in solver["krylov"].items()))
     if summary.get("cost"):
         lines.append(_cost_line(summary["cost"]))
     t = summary.get("timing", {})

@@ -117,7 +117,11 @@ def _coupling_summary(device: Device, config: dict, result: cp.CouplingResult, r
 
 def solver_summary(device: Device) -> dict:
     """``solver`` of the summary: the ``kind`` asked for and what each field got (``fields``)."""
-    return {"kind": device.solver, "fields": dict(device.solver_kinds)}
+    out = {"kind": device.solver, "fields": dict(device.solver_kinds)}
+    krylov = device.krylov_iterations()
+    if krylov:
+        out["krylov"] = krylov
+    return out
 
 
 def _mesh_summary(unknowns: dict[str, int], fields: DeviceFields) -> dict:
