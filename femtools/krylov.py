@@ -46,7 +46,8 @@ from dolfinx.fem import petsc as fem_petsc
 from femtools.errors import LinearSolveError
 
 __all__ = ["KrylovSolver", "PinnedPressure", "LinearSolveError", "rigid_body_modes", "owned_index_set",
-           "elasticity_solver", "stokes_solver", "gel_solver", "PressureSchur", "linear_solver_choice", "SOLVER_KINDS"]
+           "elasticity_solver", "stokes_solver", "gel_solver", "GelBlockKrylov", "PressureSchur",
+           "linear_solver_choice", "SOLVER_KINDS"]
 
 _counter = itertools.count()
 
@@ -141,15 +142,7 @@ class KrylovSolver:
     def factorize(self) -> None:
         """Set up the preconditioner of the current operator (assembling its own matrix, if any)."""
         t0 = time.perf_counter()
-        P = self._A
-        if self._P_form is not None:
-            if self._P is None:
-                self._P = fem_petsc.create_matrix(self._P_form)
-            self._P.zeroEntries()
-            fem_petsc.assemble_matrix(self._P, self._P_form, bcs=self._bcs)
-            self._P.assemble()
-            P = self._P
-        self.ksp.setOperators(self._A, P)
+        self.ksp.setOperators(self._A, self._preconditioner_matrix())
         if not self._configured:
             self._configure()
         else:
@@ -185,6 +178,17 @@ class KrylovSolver:
         x.copy(self._last)
 
     # -- helpers ----------------------------------------------------------------------
+    def _preconditioner_matrix(self) -> PETSc.Mat:
+        """The matrix the preconditioner is built from: ``preconditioner_form`` assembled, else the operator."""
+        if self._P_form is None:
+            return self._A
+        if self._P is None:
+            self._P = fem_petsc.create_matrix(self._P_form)
+        self._P.zeroEntries()
+        fem_petsc.assemble_matrix(self._P, self._P_form, bcs=self._bcs)
+        self._P.assemble()
+        return self._P
+
     def _initial_guess(self, b: PETSc.Vec, x: PETSc.Vec, b_norm: float) -> None:
         """Start from the last solution if its residual is below |b| (else from zero)."""
         warm = self._last is not None and self._last.getSizes() == x.getSizes()
@@ -278,7 +282,7 @@ def rigid_body_modes(V: fem.FunctionSpace, nodes: np.ndarray | None = None) -> P
 
     gdim translations and gdim (gdim - 1) / 2 rotations (3 modes in 2D, 6 in 3D),
     interpolated at the dof coordinates; ``nodes``: the owned nodes in the order
-    of the vectors (default V's own).
+    of the vectors (default V's own; a subset: the modes of a block of those nodes only).
     """
     gdim = V.mesh.geometry.dim
     bs = V.dofmap.index_map_bs
@@ -288,6 +292,7 @@ def rigid_body_modes(V: fem.FunctionSpace, nodes: np.ndarray | None = None) -> P
     X = V.tabulate_dof_coordinates()[:n, :gdim]
     if nodes is not None:
         X = X[nodes]
+        n = len(X)
     fields = []
     for i in range(gdim):
         t = np.zeros((n, gdim))
@@ -679,10 +684,7 @@ class _GelKrylov(KrylovSolver):
         subs = inner.getFieldSplitSubKSP()
         p_set = self._fields[2][1]
         self._L_beta = self._P.createSubMatrix(p_set, p_set, submat=getattr(self, "_L_beta", None))
-        mass = fem_petsc.assemble_matrix(self._mass_form)
-        mass.assemble()
-        block = mass.createSubMatrix(p_set, p_set)
-        diagonal = block.getDiagonal()
+        diagonal = self._pressure_mass_diagonal(p_set)
         if self._pressure is None:
             self._pressure = PressureSchur(self.comm, self._L_beta, diagonal, self._prefix + "fieldsplit_p_schur_")
             p_pc = subs[2].getPC()
@@ -690,8 +692,40 @@ class _GelKrylov(KrylovSolver):
             p_pc.setPythonContext(self._pressure)
         else:
             self._pressure.update(self._L_beta, diagonal)
-        for obj in (mass, block):
-            obj.destroy()
         for sub in subs:
             sub.setUp()
         self.ksp.setUp()
+
+    def _pressure_mass_diagonal(self, p_set: PETSc.IS) -> PETSc.Vec:
+        """The diagonal of the viscous mass form's pressure block (:class:`PressureSchur`'s D)."""
+        mass = fem_petsc.assemble_matrix(self._mass_form)
+        mass.assemble()
+        block = mass.createSubMatrix(p_set, p_set)
+        diagonal = block.getDiagonal()
+        for obj in (mass, block):
+            obj.destroy()
+        return diagonal
+
+
+class GelBlockKrylov(_GelKrylov):
+    """:func:`gel_solver`'s GMRES for a gel block that is part of a larger system: its operator, its
+    preconditioner matrix (the operator plus the Darcy and fixed-stress terms on p) and its viscous mass
+    matrix are given as matrices (:meth:`set_matrices`), its ``fields`` (w, u, p) in the block's numbering."""
+
+    def __init__(self, comm: MPI.Comm, name: str, fields, dim: int, options: dict | None = None):
+        super().__init__(comm, name, "gmres", _merged(gel_options(dim), options), fields=fields,
+                         preconditioned_norm=True, mass_form=None)
+
+    def set_matrices(self, A: PETSc.Mat, P: PETSc.Mat, mass: PETSc.Mat) -> None:
+        """The block's operator, preconditioner matrix and viscous mass; set up at :meth:`factorize`."""
+        self.set_operator(A)
+        self._P, self._mass = P, mass
+
+    def _preconditioner_matrix(self) -> PETSc.Mat:
+        return self._P
+
+    def _pressure_mass_diagonal(self, p_set: PETSc.IS) -> PETSc.Vec:
+        block = self._mass.createSubMatrix(p_set, p_set)
+        diagonal = block.getDiagonal()
+        block.destroy()
+        return diagonal

@@ -32,11 +32,12 @@ from gelcell.coupled.defaults import coupling_config
 from gelcell.coupled.device import Device
 from gelcell.errors import ParameterError
 from gelcell.output.timeseries import COLUMNS
-from gelcell.post.quantities import DeviceQuantities, flat_quantities
+from gelcell.post.quantities import DeviceQuantities
 from gelcell.run.backends import PartitionedBackend
 from gelcell.run.solve import solve_monolithic, solve_partitioned
 from gelcell.run.steady import run_case
 from gelcell.run.transient import TransientRun
+from agreement import assert_quantities_agree
 from transient_cases import tau
 
 MESH = 3.0          # test-sized: every element size x3
@@ -48,16 +49,6 @@ RTOL = 1e-8
 
 def _params(case: str, mesh_size: float = MESH) -> CaseParameters:
     return CaseParameters.default(case, True).with_mesh_size(mesh_size)
-
-
-def _assert_quantities_agree(a: dict, b: dict, what) -> None:
-    """Every summary quantity of ``a`` equals ``b``'s to RTOL, a vector's components relative to the vector."""
-    qa, qb = flat_quantities(a), flat_quantities(b)
-    assert qa.keys() == qb.keys()
-    for key in qb:
-        base = key.split("[")[0]
-        scale = max(abs(v) for k, v in qb.items() if k.split("[")[0] == base)
-        assert abs(qa[key] - qb[key]) <= RTOL * scale, (what, key, qa[key], qb[key])
 
 
 # --------------------------------------------------------------------------- iterative = direct
@@ -74,7 +65,7 @@ def test_iterative_equals_direct_on_the_steady_device(case):
     for field, krylov in solver["krylov"].items():
         assert krylov["solves"] > 0 and krylov["iterations"] >= krylov["solves"], field
     assert direct.summary["solver"] == {"kind": "direct", "fields": dict.fromkeys(solverchoice.FIELDS, "direct")}
-    _assert_quantities_agree(iterative.summary, direct.summary, case)
+    assert_quantities_agree(iterative.summary, direct.summary, case, RTOL)
 
 
 def _series(solver: str, windows: int) -> dict:
@@ -130,11 +121,6 @@ def test_a_device_says_what_auto_picked():
         Device(_params("shear"), solver="krylov")
 
 
-def test_the_monolithic_reference_refuses_iterative():
-    with pytest.raises(ValueError, match="monolithic reference"):
-        solve_monolithic(_params("shear"), solver="iterative")
-
-
 # --------------------------------------------------------------------------- configuration
 def config_of(argv: list[str], tmp_path=None, file_text: str | None = None):
     """The RunConfig of ``gelcell run ARGV`` (with ``--config`` of ``file_text`` if given)."""
@@ -159,12 +145,11 @@ def test_the_command_line_beats_the_file_and_the_file_beats_the_default(tmp_path
 
 @pytest.mark.parametrize("text, words", [
     ('[solver]\nkind = "krylov"\n', ["solver.kind", "'krylov'", "direct", "iterative", "auto"]),
-    ('[solver]\nmethod = "monolithic"\nkind = "iterative"\n', ["solver.kind", "monolithic", "direct", "auto"]),
     ('[solver.petsc.fluids]\nksp_rtol = 1e-9\n', ["solver.petsc.fluids", "fluid", "gel", "cell"]),
     ('[solver.petsc]\ngel = 3\n', ["solver.petsc.gel", "table of PETSc options"]),
     ('[solver]\npetsc = 3\n', ["solver.petsc", "table"]),
     ('[solver]\nmethod = "monolithic"\n[solver.petsc.gel]\nksp_rtol = 1e-9\n', ["solver.petsc.gel", "monolithic"]),
-], ids=["kind", "monolithic-iterative", "petsc-field", "petsc-options", "petsc-table", "petsc-monolithic"])
+], ids=["kind", "petsc-field", "petsc-options", "petsc-table", "petsc-monolithic"])
 def test_a_bad_solver_table_is_refused_naming_the_key(tmp_path, text, words):
     with pytest.raises(ParameterError) as info:
         config_of([], tmp_path, '[case]\nname = "shear"\n' + text)
@@ -172,11 +157,10 @@ def test_a_bad_solver_table_is_refused_naming_the_key(tmp_path, text, words):
         assert word in str(info.value), (word, str(info.value))
 
 
-def test_the_monolithic_flag_with_auto_solves_direct(tmp_path):
-    config = config_of(["shear", "--monolithic", "--solver", "auto"])
-    assert config.solver.monolithic and config.solver.kind == "auto"
-    with pytest.raises(ParameterError, match="solver.kind.*monolithic"):
-        config_of(["shear", "--monolithic", "--solver", "iterative"])
+def test_the_monolithic_flag_takes_every_solver_kind():
+    for kind in ("direct", "iterative", "auto"):
+        config = config_of(["shear", "--monolithic", "--solver", kind])
+        assert config.solver.monolithic and config.solver.kind == kind
 
 
 @pytest.mark.skip_in_parallel

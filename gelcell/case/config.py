@@ -92,10 +92,6 @@ class SolverSettings:
             raise ParameterError(f"parameter 'solver.gamma2' = {self.gamma2!r} is not one of {list(GAMMA2)}")
         if self.kind not in SOLVER_KINDS:
             raise ParameterError(f"parameter 'solver.kind' = {self.kind!r} is not one of {list(SOLVER_KINDS)}")
-        if self.monolithic and self.kind == "iterative":
-            raise ParameterError("parameter 'solver.kind' = 'iterative' (--solver iterative): the monolithic "
-                                 "reference (solver.method = 'monolithic') solves with MUMPS only; give 'direct' "
-                                 "or 'auto' (which picks direct for it)")
         object.__setattr__(self, "petsc", _petsc_tables(self.petsc))
         if self.monolithic and self.petsc:
             raise ParameterError(f"parameter 'solver.petsc.{next(iter(self.petsc))}': PETSc options are for the "

@@ -213,8 +213,9 @@ def _add_solver_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--solver", choices=SOLVER_KINDS, default=None,
                    help="the field solvers' linear solves: direct (MUMPS; default), iterative (Krylov with "
                         "multigrid, femtools.krylov) or auto (direct in 2D and for small 3D fields, iterative "
-                        "above a number of unknowns per field; the run prints what it picked); the monolithic "
-                        "reference is direct only (solver.kind; PETSc options per field: [solver.petsc.FIELD])")
+                        "above a number of unknowns per field; the run prints what it picked); with --monolithic "
+                        "iterative is FGMRES over a gel-first block sweep, auto direct (solver.kind; "
+                        "PETSc options per field: [solver.petsc.FIELD])")
     _flag(g, "--monolithic", help="solve the monolithic reference (all fields in one Newton system) instead "
                                   "(solver.method = \"monolithic\")")
     _flag(g, "--quiet", help="no per-iteration coupling progress (output.progress = false)")

@@ -90,6 +90,7 @@ from femtools.linalg import NewtonSolver, jacobian_at_rest
 from femtools.timestepping import RateHistory
 from gelcell.case import CaseParameters
 from gelcell.coupled.defaults import default_robin_coefficient
+from gelcell.coupled.monolithic_krylov import MonolithicKrylov
 from gelcell.geometry import DeviceBoundaries, Tag
 
 __all__ = ["MonolithicCoefficients", "MonolithicSolver", "monolithic_coefficients"]
@@ -127,12 +128,15 @@ class MonolithicSolver:
             Tag.FLUID, Tag.GEL and the cells' ``cell_region_tags``, default Tag.CELL).
         boundaries: the case's boundary conditions.
         coefficients: parameter values.
+        solver: each Newton step's linear solve, ``"direct"`` (MUMPS) or ``"iterative"``
+            (:class:`~gelcell.coupled.monolithic_krylov.MonolithicKrylov`).
     """
 
     def __init__(self, msh, cell_tags, facet_tags, boundaries: DeviceBoundaries,
                  coefficients: MonolithicCoefficients, quadrature_degree: int = 4,
                  newton_rtol: float = 1e-12, petsc_options: dict | None = None,
-                 transient: bool = False, cell_region_tags: typing.Sequence[int] | None = None):
+                 transient: bool = False, cell_region_tags: typing.Sequence[int] | None = None,
+                 solver: str = "direct"):
         t0 = time.perf_counter()
         self.mesh, self.cell_tags, self.facet_tags = settle_coordinate_element(msh), cell_tags, facet_tags
         #: the cell tags of the cells (several cells: one tag each)
@@ -163,12 +167,18 @@ class MonolithicSolver:
             self.history = RateHistory(V_u, ufl.split(self.w)[3], coefficients.displacement_scale, "u")
         F = self._residual(quadrature_degree)
         self.bcs = self._boundary_conditions()
+        if solver not in ("direct", "iterative"):
+            raise ValueError(f"monolithic: solver must be 'direct' or 'iterative', got {solver!r}")
+        self.solver_kind = solver
+        active = self.active_dofs()
         # transient: the Jacobian changes only with dt, so keep it while Newton contracts
         self.newton = NewtonSolver(F, self.w, self.bcs, name="monolithic", rtol=newton_rtol,
                                    reuse="adaptive" if self.transient else "never", max_it=20,
-                                   petsc_options=petsc_options, active_dofs=self.active_dofs(),
+                                   petsc_options=petsc_options, active_dofs=active,
                                    J_reference=(jacobian_at_rest(F, self.w, self.history.past)
-                                                if self.transient else None))
+                                                if self.transient else None),
+                                   linear_solver=(self._krylov_solver(active, quadrature_degree, petsc_options)
+                                                  if solver == "iterative" else None))
         self.setup_time = time.perf_counter() - t0
         self.solve_time = 0.0
 
@@ -248,6 +258,26 @@ class MonolithicSolver:
                      + weight * j * (ufl.dot(V, n) - ufl.dot(flux, n)) * ufl.dot(mu, n)
                      - ufl.dot(tangential(lam - alpha_t * j * (V - v_f)), tangential(mu)))
         return F, interface
+
+    def _krylov_solver(self, active: np.ndarray, degree: int, options: dict | None) -> MonolithicKrylov:
+        """FGMRES with the gel-first block sweep (gelcell.coupled.monolithic_krylov); its gel block's pressure
+        Schur complement as the gel solver's: (phi_f^2 / k)(grad p . grad q + p q) + beta p q and the
+        viscous mass (phi_f^2 / nu_e + beta) p q, k the drag, nu_e = mu phi_f, beta the fixed stress."""
+        c = self.gel_coefficients
+        p, q = ufl.TrialFunctions(self.W)[4], ufl.TestFunctions(self.W)[4]
+        phi_s = c.phi_s0
+        phi_f = 1 - phi_s
+        drag, nu_e = c.viscosity * c.xi * phi_f * phi_s, c.viscosity * phi_f
+        beta = 0.0 if self.history is None else self.history.constants[0] / (c.stiffness * phi_s * (1 + c.lambda_s))
+        dx = quadrature_measure("dx", self.mesh, self.cell_tags, degree)(int(Tag.GEL))
+        darcy = (phi_f**2 / drag * (ufl.inner(ufl.grad(p), ufl.grad(q)) + p * q) + beta * p * q) * dx
+        mass = (phi_f**2 / nu_e + beta) * p * q * dx
+        P, Q = ufl.TrialFunctions(self.W)[1], ufl.TestFunctions(self.W)[1]
+        fluid_mass = P * Q / c.viscosity * quadrature_measure("dx", self.mesh, self.cell_tags, degree)(int(Tag.FLUID))
+        fields = {name: self.W.sub(i).collapse()[1] for i, name in enumerate(self.field_names)}
+        vectors = {name: self.W.sub(self.field_names.index(name)).collapse() for name in ("w", "u")}
+        return MonolithicKrylov(self.W, active, fields, vectors, fem.form(darcy), fem.form(mass), fem.form(fluid_mass),
+                                options=options)
 
     # -- boundary conditions -------------------------------------------------
     def _sub(self, i: int, comp: int | None = None):

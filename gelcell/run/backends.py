@@ -103,13 +103,13 @@ class MonolithicBackend:
 
     method = "monolithic"
 
-    def __init__(self, params: CaseParameters, comm: MPI.Comm, time_scheme: str, inflow):
+    def __init__(self, params: CaseParameters, comm: MPI.Comm, time_scheme: str, inflow, solver: str = "direct"):
         self.params, self.comm, self.inflow = params, comm, inflow
         self.meshes = build_meshes(params, comm, whole=True)
         msh, ct, ft = self.meshes.whole
         layout = self.meshes.layout
         self.solver = MonolithicSolver(msh, ct, ft, layout.boundaries, monolithic_coefficients(params), transient=True,
-                                       cell_region_tags=layout.cell_region_tags or None)
+                                       cell_region_tags=layout.cell_region_tags or None, solver=solver)
         self.clock = WindowClock(time_scheme)
         self._transfers: dict = {}
         self.fields = self._region_fields()

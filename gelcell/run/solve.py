@@ -29,10 +29,8 @@ from gelcell.post.residuals import interface_residuals
 from gelcell.post.validity import check_case
 from gelcell.run.cost import cost_summary, device_unknowns, monolithic_unknowns
 
-__all__ = ["CaseRun", "solve_partitioned", "solve_monolithic", "solver_summary", "MONOLITHIC_SOLVER"]
-
-#: what solves the monolithic reference: MUMPS only (``solver.kind`` auto picks it; iterative is refused)
-MONOLITHIC_SOLVER = "direct"
+__all__ = ["CaseRun", "solve_partitioned", "solve_monolithic", "solver_summary", "monolithic_solver_kind",
+           "monolithic_solver_summary"]
 
 
 class CaseRun(typing.NamedTuple):
@@ -138,16 +136,34 @@ def _cells(f) -> int:
     return msh.topology.index_map(msh.topology.dim).size_global
 
 
+def monolithic_solver_kind(solver: str) -> str:
+    """What solves the monolithic reference for ``[solver] kind``: ``auto`` picks MUMPS at every size
+    (its iterative path is slower than MUMPS on every device measured, docs/performance.md)."""
+    if solver not in ("direct", "auto", "iterative"):
+        raise ValueError(f"solver = {solver!r}: give 'direct', 'iterative' or 'auto'")
+    return "iterative" if solver == "iterative" else "direct"
+
+
+def monolithic_solver_summary(asked: str, solver: MonolithicSolver) -> dict:
+    """``solver`` of a monolithic summary; on the iterative path also the FGMRES iterations (``krylov``)
+    and the gel's inner GMRES iterations they took (``inner_iterations``)."""
+    out = {"kind": asked, "fields": {"monolithic": solver.solver_kind}}
+    stats = solver.newton.stats
+    if solver.solver_kind == "iterative":
+        solves, its = int(stats["solves"]), int(stats["krylov_iterations"])
+        out["krylov"] = {"monolithic": {"solves": solves, "iterations": its, "mean": its / solves if solves else 0.0,
+                                        "inner_iterations": int(sum(solver.newton.solver.inner_iterations))}}
+    return out
+
+
 def solve_monolithic(params: CaseParameters, comm: MPI.Comm = MPI.COMM_WORLD, checks: bool = True,
                      solver: str = "direct") -> CaseRun:
     """Solve a case with the monolithic reference; same summary as the partitioned run.
 
-    ``solver``: ``"direct"`` or ``"auto"`` (which picks direct): the reference has no iterative path.
+    ``solver``: ``"direct"`` (MUMPS), ``"iterative"`` (FGMRES with the gel-first block sweep,
+    :mod:`gelcell.coupled.monolithic_krylov`) or ``"auto"`` (:func:`monolithic_solver_kind`).
     """
-    if solver not in ("direct", "auto"):
-        raise ValueError(f"solver = {solver!r}: the monolithic reference is solved by MUMPS only "
-                         f"(give 'direct' or 'auto')")
-    asked = {"kind": solver, "fields": {"monolithic": MONOLITHIC_SOLVER}}
+    asked, kind = solver, monolithic_solver_kind(solver)
     t0 = time.perf_counter()
     params = described(params)
     check_case(params)
@@ -155,7 +171,7 @@ def solve_monolithic(params: CaseParameters, comm: MPI.Comm = MPI.COMM_WORLD, ch
     msh, ct, ft = dev_mesh.whole
     layout = dev_mesh.layout
     solver = MonolithicSolver(msh, ct, ft, layout.boundaries, monolithic_coefficients(params),
-                              cell_region_tags=layout.cell_region_tags or None)
+                              cell_region_tags=layout.cell_region_tags or None, solver=kind)
     t1 = time.perf_counter()
     iterations = solver.solve()
     t_solve = time.perf_counter() - t1
@@ -166,7 +182,7 @@ def solve_monolithic(params: CaseParameters, comm: MPI.Comm = MPI.COMM_WORLD, ch
                              "active_dofs": int(solver.newton.num_active_dofs),
                              "dofs": solver.num_dofs}
     summary["coupling"] = None
-    summary["solver"] = asked
+    summary["solver"] = monolithic_solver_summary(asked, solver)
     whole = msh.topology.index_map(msh.topology.dim).size_global
     summary["mesh"] = {"whole": {"cells": whole, "dofs": solver.num_dofs},
                        "fluid": {"cells": _cells(fields.fluid_velocity)},

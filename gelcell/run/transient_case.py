@@ -32,7 +32,7 @@ from gelcell.run.backends import MonolithicBackend, PartitionedBackend
 from gelcell.run.cost import cost_summary, device_unknowns, monolithic_unknowns
 from gelcell.run.frames import FRAMES_DIR, read_frame
 from gelcell.run.resume import CHECKPOINT
-from gelcell.run.solve import MONOLITHIC_SOLVER, solver_summary
+from gelcell.run.solve import monolithic_solver_kind, monolithic_solver_summary, solver_summary
 from gelcell.run.steady import run_header, solver_arguments, write_case_file
 from gelcell.run.transient import TransientRun
 
@@ -61,7 +61,8 @@ def _header(config: RunConfig, coupling: dict | None, plan: dict) -> list[str]:
 def _backend(config: RunConfig, coupling: dict | None, comm: MPI.Comm):
     settings = config.time
     if coupling is None:
-        return MonolithicBackend(config.case, comm, settings.scheme, settings.waveform)
+        return MonolithicBackend(config.case, comm, settings.scheme, settings.waveform,
+                                 solver=monolithic_solver_kind(config.solver.kind))
     device = Device(config.case, comm, gamma2=config.solver.gamma2, transient=True, time_scheme=settings.scheme,
                     inflow=settings.waveform, distribute=coupling.get("distribute"), **solver_arguments(config))
     return PartitionedBackend(device, {**coupling, "verbose": False}, comm)
@@ -82,7 +83,7 @@ def _summary(run: TransientRun, backend, state: dict, config: RunConfig, setup_t
     summary = report(raw, params)
     summary["coupling"] = backend.describe()
     summary["solver"] = (solver_summary(backend.device) if backend.method == "partitioned" else
-                         {"kind": config.solver.kind, "fields": {"monolithic": MONOLITHIC_SOLVER}})
+                         monolithic_solver_summary(config.solver.kind, backend.solver))
     summary["cost"] = cost_summary(device_unknowns(backend.device) if backend.method == "partitioned" else
                                    monolithic_unknowns(backend.solver), backend.comm)
     summary["transient"] = transient_summary(state, params, config.time, run.plan)
