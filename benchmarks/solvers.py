@@ -19,6 +19,7 @@ asserted.
 
     .venv/bin/python benchmarks/solvers.py --json solvers.json          # everything (about 2 hours)
     .venv/bin/python benchmarks/solvers.py --sizes-2d 1 0.5 --sizes-3d 4 3 --two-ranks 2d:1 3d:4
+    .venv/bin/python benchmarks/solvers.py --table solvers.json again.json   # print stored rows
 """
 
 from __future__ import annotations
@@ -64,7 +65,8 @@ def measure(dim: int, size: float, solver: str, ranks: int, height: float, timeo
     row["wall"] = time.perf_counter() - t0
     if proc.returncode != 0:
         last = (proc.stderr.strip() or proc.stdout.strip()).splitlines()[-1:] or ["?"]
-        return {**row, "status": "refused" if "memory" in last[0] else "failed", "message": last[0]}
+        refused = "memory" in last[0] or " need about " in last[0]       # gelcell's estimate before meshing
+        return {**row, "status": "refused" if refused else "failed", "message": last[0]}
     with open(os.path.join(out, "summary.json")) as fh:
         s = json.load(fh)
     timing = s["timing"]
@@ -117,6 +119,16 @@ def print_table(rows: list[dict]) -> None:
                       f"on the solves, {one['wall'] / r['wall']:.2f}x on the wall")
 
 
+def merged_rows(paths: list[str]) -> list[dict]:
+    """The rows of several --json files in the first file's order; a later file's row replaces an earlier's."""
+    key = lambda r: (r["dim"], r["mesh_size"], r["ranks"], r["solver"])  # noqa: E731
+    rows: dict = {}
+    for path in paths:
+        with open(path) as fh:
+            rows.update((key(r), r) for r in json.load(fh))
+    return list(rows.values())
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sizes-2d", type=float, nargs="*", default=[1.0, 0.5, 0.25, 0.125])
@@ -125,7 +137,13 @@ def main() -> None:
     parser.add_argument("--height", type=float, default=0.4, help="3D chip height (units of L0)")
     parser.add_argument("--timeout", type=float, default=3600.0, help="seconds allowed to each run")
     parser.add_argument("--json", help="write the rows as JSON (after every run)")
+    parser.add_argument("--table", nargs="+", metavar="JSON",
+                        help="print the table of rows written by --json (a later file's row replaces an earlier "
+                             "file's row of the same dim, mesh size, ranks and solver) and run nothing")
     args = parser.parse_args()
+    if args.table:
+        print_table(merged_rows(args.table))
+        return
     # the 2-rank rows before the 3D levels: the finest 3D level is the longest run
     plan = [(2, s, 1) for s in args.sizes_2d]
     plan += [(int(d[0]), float(s), 2) for d, s in (item.lower().split(":") for item in args.two_ranks)]
